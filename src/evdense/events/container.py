@@ -10,8 +10,9 @@ Layout (format ``evdense-events``, version 1)::
     attrs: format, version, width, height, time_unit ("us"), num_events, t_start_us, t_end_us,
            t_offset_us, index_step_us, provenance (JSON string), and any extra attributes given
 
-Datasets are chunked and compressed (shuffle + LZF by default), so any time or index range can
-be read without reading the rest. A file is written under a temporary name and renamed when
+Datasets are chunked and compressed (Blosc LZ4 with byte shuffle by default, through hdf5plugin:
+about 4 bytes per event, read at over 100 M events/s; other HDF5 readers need ``import hdf5plugin``
+or the Blosc filter plugin), so any time or index range can be read without reading the rest. A file is written under a temporary name and renamed when
 complete, so a file with the final name is always whole.
 """
 
@@ -25,6 +26,7 @@ from pathlib import Path
 from typing import Any
 
 import h5py
+import hdf5plugin
 import numpy as np
 
 FORMAT_NAME = "evdense-events"
@@ -33,6 +35,23 @@ CHUNK_EVENTS = 1 << 18
 INDEX_STEP_US = 1000
 
 _DTYPES = {"t": np.int64, "x": np.uint16, "y": np.uint16, "p": np.int8}
+
+
+def compression_options(name: str | None) -> dict[str, Any]:
+    """h5py ``create_dataset`` keyword arguments for a compression name.
+
+    ``blosc-lz4`` (default: fast), ``zstd`` (smaller), ``gzip`` (readable everywhere, slow), ``lzf``,
+    or ``None`` (uncompressed).
+    """
+    if name is None or name == "none":
+        return {}
+    if name == "blosc-lz4":
+        return dict(hdf5plugin.Blosc(cname="lz4", clevel=5, shuffle=hdf5plugin.Blosc.SHUFFLE))
+    if name == "zstd":
+        return dict(hdf5plugin.Zstd(clevel=3))
+    if name in ("gzip", "lzf"):
+        return {"compression": name, "shuffle": True}
+    raise ValueError(f"unknown event-file compression {name!r} (blosc-lz4, zstd, gzip, lzf, none)")
 
 
 @dataclass
@@ -86,7 +105,7 @@ class EventWriter:
         height: int,
         provenance: dict[str, Any] | None = None,
         attrs: dict[str, Any] | None = None,
-        compression: str | None = "lzf",
+        compression: str | None = "blosc-lz4",
         chunk_events: int = CHUNK_EVENTS,
         t_offset_us: int | None = None,
     ) -> None:
@@ -104,8 +123,7 @@ class EventWriter:
                 maxshape=(None,),
                 dtype=dt,
                 chunks=(chunk_events,),
-                compression=compression,
-                shuffle=compression is not None,
+                **compression_options(compression),
             )
         self._n = 0
         self._t_first: int | None = None
@@ -170,7 +188,7 @@ class EventWriter:
         idx = np.concatenate(self._index) if self._index else np.zeros(0, dtype=np.int64)
         # One entry past the end so that every time range has an upper bound.
         idx = np.append(idx, self._n).astype(np.int64)
-        self._f.create_dataset("t_index", data=idx, compression="lzf")
+        self._f.create_dataset("t_index", data=idx, **compression_options("gzip"))
         a = self._f.attrs
         a["format"] = FORMAT_NAME
         a["version"] = FORMAT_VERSION

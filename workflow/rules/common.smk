@@ -1,0 +1,38 @@
+# Helpers shared by the rules: dataset lookup, wildcard constraints, target lists.
+# Logic lives in the evdense package; this file only maps config to paths.
+
+import re
+
+from evdense.config import check_config
+
+check_config(config, base_dir=workflow.basedir)
+
+DATASETS = dict(config["datasets"])
+SYNTHETIC = [name for name, ds in DATASETS.items() if "scene" in ds]
+RECORDINGS = [name for name, ds in DATASETS.items() if "recording" in ds]
+
+
+def names_regex(names):
+    """A regex matching exactly these names (and nothing when the list is empty)."""
+    return "|".join(re.escape(n) for n in names) or "(?!x)x"
+
+
+wildcard_constraints:
+    dataset=names_regex(DATASETS),
+
+
+def dataset_conf(wildcards):
+    """The config entry of the dataset named by the wildcard."""
+    return DATASETS[wildcards.dataset]
+
+
+def sim_conf(wildcards=None):
+    return config["simulator"]
+
+
+def all_targets():
+    """Everything `rule all` asks for, per dataset and per configured sweep point."""
+    targets = []
+    for name in DATASETS:
+        targets += dataset_targets(name)
+    return targets
