@@ -36,3 +36,25 @@ def all_targets():
     for name in DATASETS:
         targets += dataset_targets(name)
     return targets
+
+
+def default_window_spec():
+    """The window spec of the configured default windows (e.g. n25000)."""
+    from evdense.events.windows import WindowConfig, window_spec
+
+    return window_spec(WindowConfig.from_dict(config["events"]["window"]))
+
+
+def event_frame_sources():
+    """Names of the event-based frame sources: {method}_{win}_b{bins} for each configured method."""
+    win, bins = default_window_spec(), config["events"]["voxel"]["bins"]
+    return [f"{m}_{win}_b{bins}" for m in config["reconstruct"]["methods"]]
+
+
+def dataset_targets(name):
+    """Outputs `rule all` asks for, for one dataset."""
+    targets = [f"results/{name}/events/summary"]
+    if name in SYNTHETIC:
+        targets += [f"results/{name}/gt", f"results/{name}/conventional"]
+    targets += [f"results/{name}/frames/{src}" for src in event_frame_sources()]
+    return targets
