@@ -1,0 +1,461 @@
+"""The shipped scene presets: ``room``, ``desk`` and ``facade`` (scene specs, see
+:mod:`evdense.sim.scene` for the format).
+
+Each is enclosed (a textured room or backdrop box, so no ray escapes), richly textured, has a light
+surface (lamp, window, screen) whose radiance the dataset's ``dynamic_range`` multiplies, and a
+smooth ~4 s path that translates the camera 1 to 4 m from the surfaces it looks at.
+World frame: metres, z up.
+"""
+
+from __future__ import annotations
+
+
+def _kp(position: list[float], look_at: list[float]) -> dict:
+    return {"position": position, "look_at": look_at}
+
+
+ROOM = {
+    "name": "room",
+    "description": "A 7 x 6 x 3 m room with five textured boxes on the floor, a poster, a bright "
+    "window on the back wall and a wall lamp; the camera sweeps an arc in front of the boxes.",
+    "duration": 4.0,
+    "shading": {"direction": [0.3, -0.5, 1.0], "ambient": 0.55},
+    "materials": {
+        "wall": {
+            "texture": {
+                "type": "dead_leaves",
+                "size": 1024,
+                "rmin": 3,
+                "rmax": 120,
+                "variation": 0.3,
+            },
+            "tile_m": 4.0,
+        },
+        "floor": {
+            "texture": {"type": "noise", "size": 1024, "beta": 2.4, "low": 0.06, "high": 0.7},
+            "tile_m": 4.0,
+        },
+        "ceiling": {
+            "texture": {"type": "noise", "beta": 2.8, "low": 0.3, "high": 0.8},
+            "tile_m": 3.0,
+        },
+        "brick": {
+            "texture": {"type": "image", "path": "skimage:brick", "repeat": 2, "variation": 0.5},
+            "tile_m": 2.0,
+        },
+        "leaves": {"texture": {"type": "dead_leaves", "rmin": 2, "rmax": 80}, "tile_m": 0.8},
+        "checker": {
+            "texture": {"type": "checker", "squares": 8, "low": 0.08, "high": 0.75},
+            "tile_m": 0.8,
+        },
+        "gravel": {"texture": "skimage:gravel", "tile_m": 0.8},
+        "poster": {"texture": "skimage:astronaut", "tile_m": 1.4},
+        "window": {
+            "texture": {"type": "noise", "fmin": 1, "beta": 3.0, "low": 0.55, "high": 1.0},
+            "tile_m": 1.6,
+            "radiance": 3.0,
+            "light": True,
+        },
+        "lamp": {
+            "texture": {"type": "noise", "fmin": 1, "beta": 3.0, "low": 0.7, "high": 1.0},
+            "tile_m": 0.6,
+            "radiance": 3.0,
+            "light": True,
+        },
+    },
+    "objects": [
+        {
+            "type": "room",
+            "size": [7.0, 6.0, 3.0],
+            "center": [0.0, 0.0, 1.5],
+            "material": "wall",
+            "face_materials": {"floor": "floor", "ceiling": "ceiling"},
+        },
+        {
+            "type": "box",
+            "size": [1.0, 0.8, 0.9],
+            "center": [-0.8, 1.2, 0.45],
+            "rotation_deg": [0, 0, 15],
+            "material": "brick",
+        },
+        {
+            "type": "box",
+            "size": [0.5, 0.5, 0.5],
+            "center": [-0.8, 1.2, 1.15],
+            "rotation_deg": [0, 0, 40],
+            "material": "leaves",
+        },
+        {
+            "type": "box",
+            "size": [0.6, 0.6, 0.6],
+            "center": [0.6, 1.6, 0.3],
+            "rotation_deg": [0, 0, -10],
+            "material": "checker",
+        },
+        {
+            "type": "box",
+            "size": [0.5, 0.5, 1.6],
+            "center": [1.8, 0.4, 0.8],
+            "rotation_deg": [0, 0, 25],
+            "material": "leaves",
+        },
+        {
+            "type": "box",
+            "size": [0.8, 0.5, 0.4],
+            "center": [-2.2, -0.1, 0.2],
+            "rotation_deg": [0, 0, -20],
+            "material": "gravel",
+        },
+        {
+            "type": "cylinder",
+            "center": [0.3, 0.6, 0.0],
+            "radius": 0.2,
+            "height": 0.7,
+            "material": "checker",
+        },
+        {
+            "type": "plane",
+            "center": [0.6, 2.99, 1.7],
+            "size": [1.6, 1.0],
+            "normal": [0, -1, 0],
+            "material": "window",
+        },
+        {
+            "type": "plane",
+            "center": [3.49, 1.2, 1.9],
+            "size": [0.7, 0.45],
+            "normal": [-1, 0, 0],
+            "material": "lamp",
+        },
+        {
+            "type": "plane",
+            "center": [-3.49, 0.6, 1.5],
+            "size": [1.4, 1.4],
+            "normal": [1, 0, 0],
+            "material": "poster",
+        },
+    ],
+    "trajectory": {
+        "type": "spline",
+        "key_poses": [
+            _kp([-1.8, -1.6, 1.5], [-0.4, 1.3, 0.8]),
+            _kp([-0.6, -2.0, 1.65], [0.0, 1.4, 0.8]),
+            _kp([0.7, -1.9, 1.4], [0.3, 1.3, 0.7]),
+            _kp([1.8, -1.3, 1.55], [0.4, 1.4, 0.8]),
+        ],
+    },
+}
+
+DESK = {
+    "name": "desk",
+    "description": "A desk against the wall of a 5 x 4 x 2.8 m room, with a monitor (its screen a "
+    "light), books, a jar, a tissue box, a desk lamp with a bright shade and a picture on the wall; "
+    "the camera moves sideways 1 to 2 m in front of the desk, looking down at it.",
+    "duration": 4.0,
+    "shading": {"direction": [-0.4, -0.6, 1.0], "ambient": 0.5},
+    "materials": {
+        "wall": {
+            "texture": {
+                "type": "dead_leaves",
+                "size": 1024,
+                "rmin": 3,
+                "rmax": 100,
+                "variation": 0.3,
+            },
+            "tile_m": 3.0,
+        },
+        "floor": {
+            "texture": {"type": "image", "path": "skimage:gravel", "repeat": 4, "variation": 0.5},
+            "tile_m": 4.0,
+        },
+        "ceiling": {
+            "texture": {"type": "noise", "beta": 2.8, "low": 0.3, "high": 0.8},
+            "tile_m": 2.0,
+        },
+        "wood": {
+            "texture": {"type": "noise", "beta": 2.2, "low": 0.15, "high": 0.6},
+            "tile_m": 1.0,
+        },
+        "plastic": {
+            "texture": {"type": "noise", "beta": 2.6, "low": 0.05, "high": 0.25},
+            "tile_m": 0.5,
+        },
+        "book1": {"texture": "skimage:text", "tile_m": 0.3},
+        "book2": {
+            "texture": {"type": "checker", "squares": 8, "low": 0.1, "high": 0.7},
+            "tile_m": 0.3,
+        },
+        "book3": {"texture": {"type": "dead_leaves", "rmin": 2, "rmax": 60}, "tile_m": 0.3},
+        "jar": {"texture": "skimage:coins", "tile_m": 0.4},
+        "tissue": {"texture": "skimage:camera", "tile_m": 0.3},
+        "picture": {"texture": "skimage:coffee", "tile_m": 0.8},
+        "screen": {"texture": "skimage:astronaut", "tile_m": 0.6, "radiance": 2.0, "light": True},
+        "shade": {
+            "texture": {"type": "noise", "fmin": 1, "beta": 3.0, "low": 0.7, "high": 1.0},
+            "tile_m": 0.3,
+            "radiance": 3.0,
+            "light": True,
+        },
+    },
+    "objects": [
+        {
+            "type": "room",
+            "size": [5.0, 4.0, 2.8],
+            "center": [0.0, 0.0, 1.4],
+            "material": "wall",
+            "face_materials": {"floor": "floor", "ceiling": "ceiling"},
+        },
+        # desk: top slab on two pedestals
+        {"type": "box", "size": [1.8, 0.8, 0.05], "center": [0.0, 1.55, 0.75], "material": "wood"},
+        {
+            "type": "box",
+            "size": [0.45, 0.7, 0.725],
+            "center": [-0.62, 1.55, 0.3625],
+            "material": "wood",
+            "open_faces": ["bottom"],
+        },
+        {
+            "type": "box",
+            "size": [0.45, 0.7, 0.725],
+            "center": [0.62, 1.55, 0.3625],
+            "material": "wood",
+            "open_faces": ["bottom"],
+        },
+        # monitor: screen (front face emits), stand, foot
+        {
+            "type": "box",
+            "size": [0.62, 0.05, 0.38],
+            "center": [0.1, 1.78, 1.08],
+            "material": "plastic",
+            "face_materials": {"front": "screen"},
+        },
+        {
+            "type": "box",
+            "size": [0.08, 0.06, 0.14],
+            "center": [0.1, 1.82, 0.845],
+            "material": "plastic",
+        },
+        {
+            "type": "box",
+            "size": [0.28, 0.2, 0.02],
+            "center": [0.1, 1.8, 0.785],
+            "material": "plastic",
+        },
+        # books
+        {
+            "type": "box",
+            "size": [0.32, 0.24, 0.05],
+            "center": [-0.55, 1.4, 0.8],
+            "rotation_deg": [0, 0, 8],
+            "material": "book1",
+        },
+        {
+            "type": "box",
+            "size": [0.3, 0.22, 0.05],
+            "center": [-0.55, 1.41, 0.85],
+            "rotation_deg": [0, 0, -6],
+            "material": "book2",
+        },
+        {
+            "type": "box",
+            "size": [0.28, 0.2, 0.06],
+            "center": [-0.54, 1.4, 0.905],
+            "rotation_deg": [0, 0, 14],
+            "material": "book3",
+        },
+        # jar and tissue box
+        {
+            "type": "cylinder",
+            "center": [0.55, 1.35, 0.775],
+            "radius": 0.08,
+            "height": 0.2,
+            "material": "jar",
+        },
+        {
+            "type": "box",
+            "size": [0.25, 0.13, 0.12],
+            "center": [-0.2, 1.3, 0.835],
+            "rotation_deg": [0, 0, -25],
+            "material": "tissue",
+        },
+        # desk lamp: foot, post, bright shade
+        {
+            "type": "box",
+            "size": [0.16, 0.16, 0.03],
+            "center": [0.72, 1.75, 0.79],
+            "material": "plastic",
+        },
+        {
+            "type": "box",
+            "size": [0.03, 0.03, 0.36],
+            "center": [0.72, 1.75, 0.985],
+            "material": "plastic",
+        },
+        {
+            "type": "box",
+            "size": [0.22, 0.14, 0.1],
+            "center": [0.68, 1.7, 1.2],
+            "rotation_deg": [0, 0, 20],
+            "material": "shade",
+        },
+        # picture on the wall
+        {
+            "type": "plane",
+            "center": [-0.5, 1.99, 1.55],
+            "size": [0.8, 0.4],  # the 2:1 aspect of the cropped image (512 x 256)
+            "normal": [0, -1, 0],
+            "material": "picture",
+        },
+    ],
+    "trajectory": {
+        "type": "spline",
+        "key_poses": [
+            _kp([-0.9, 0.15, 1.4], [-0.15, 1.55, 0.9]),
+            _kp([-0.3, -0.05, 1.5], [0.0, 1.55, 0.95]),
+            _kp([0.35, 0.0, 1.35], [0.1, 1.55, 0.9]),
+            _kp([0.95, 0.2, 1.45], [0.2, 1.55, 0.95]),
+        ],
+    },
+}
+
+
+def _facade_objects() -> list[dict]:
+    objs: list[dict] = [
+        {
+            "type": "room",  # backdrop: street below, distant surroundings on the sides and behind
+            "size": [60.0, 60.0, 30.0],
+            "center": [0.0, 0.0, 15.0],
+            "material": "surroundings",
+            "face_materials": {"floor": "street", "ceiling": "sky"},
+        },
+        {
+            "type": "box",
+            "size": [16.0, 8.0, 9.5],
+            "center": [0.0, 4.0, 4.75],
+            "material": "brick",
+            "open_faces": ["bottom"],
+        },
+        # door with a canopy (strong parallax) and two planters
+        {
+            "type": "plane",
+            "center": [0.0, -0.01, 1.1],
+            "size": [1.4, 2.2],
+            "normal": [0, -1, 0],
+            "material": "door",
+        },
+        {
+            "type": "box",
+            "size": [2.2, 1.0, 0.12],
+            "center": [0.0, -0.5, 2.5],
+            "material": "concrete",
+        },
+        {
+            "type": "box",
+            "size": [1.0, 0.6, 0.55],
+            "center": [-1.6, -0.5, 0.275],
+            "material": "concrete",
+            "open_faces": ["bottom"],
+        },
+        {
+            "type": "box",
+            "size": [1.0, 0.6, 0.55],
+            "center": [1.6, -0.5, 0.275],
+            "material": "concrete",
+            "open_faces": ["bottom"],
+        },
+        # pilasters at the corners of the front
+        {
+            "type": "box",
+            "size": [0.6, 0.3, 9.5],
+            "center": [-6.5, -0.15, 4.75],
+            "material": "concrete",
+            "open_faces": ["bottom"],
+        },
+        {
+            "type": "box",
+            "size": [0.6, 0.3, 9.5],
+            "center": [6.5, -0.15, 4.75],
+            "material": "concrete",
+            "open_faces": ["bottom"],
+        },
+    ]
+    lit = {(0, 1), (1, 3), (2, 0), (1, 4)}
+    for row, zc in enumerate([2.0, 4.9, 7.8]):
+        for col, xc in enumerate([-5.0, -2.5, 0.0, 2.5, 5.0]):
+            if row == 0 and col == 2:
+                continue  # the door
+            mat = "lit_window" if (row, col) in lit else "glass"
+            objs.append(
+                {
+                    "type": "plane",
+                    "center": [xc, -0.01, zc],
+                    "size": [1.1, 1.5],
+                    "normal": [0, -1, 0],
+                    "material": mat,
+                }
+            )
+            objs.append(
+                {
+                    "type": "box",
+                    "size": [1.4, 0.25, 0.1],
+                    "center": [xc, -0.125, zc - 0.8],
+                    "material": "concrete",
+                }
+            )
+    return objs
+
+
+FACADE = {
+    "name": "facade",
+    "description": "A 16 m wide brick building front with 14 windows (four of them lit, the lights), "
+    "sills, a door under a canopy, planters and pilasters, on a street inside a backdrop box; the "
+    "camera walks along the street 3 to 4.5 m from the facade, looking at it.",
+    "duration": 4.0,
+    "shading": {"direction": [-0.5, -1.0, 1.2], "ambient": 0.45},
+    "materials": {
+        "brick": {
+            "texture": {"type": "image", "path": "skimage:brick", "repeat": 4, "variation": 0.6},
+            "tile_m": 6.0,
+        },
+        "concrete": {
+            "texture": {"type": "noise", "beta": 2.4, "low": 0.25, "high": 0.75},
+            "tile_m": 1.0,
+        },
+        "door": {
+            "texture": {"type": "dead_leaves", "rmin": 2, "rmax": 80, "low": 0.05, "high": 0.5},
+            "tile_m": 1.0,
+        },
+        "glass": {
+            "texture": {"type": "noise", "beta": 2.2, "low": 0.03, "high": 0.3},
+            "tile_m": 1.0,
+        },
+        "lit_window": {
+            "texture": {"type": "noise", "fmin": 1, "beta": 3.0, "low": 0.5, "high": 1.0},
+            "tile_m": 1.2,
+            "radiance": 3.0,
+            "light": True,
+        },
+        "street": {
+            "texture": {"type": "image", "path": "skimage:gravel", "repeat": 4, "variation": 0.5},
+            "tile_m": 6.0,
+        },
+        "surroundings": {"texture": {"type": "dead_leaves", "rmin": 3, "rmax": 160}, "tile_m": 8.0},
+        "sky": {
+            "texture": {"type": "noise", "fmin": 1, "beta": 3.0, "low": 0.6, "high": 1.0},
+            "tile_m": 20.0,
+            "radiance": 2.0,
+        },
+    },
+    "objects": _facade_objects(),
+    "trajectory": {
+        "type": "spline",
+        "key_poses": [
+            _kp([-3.2, -4.3, 1.7], [-1.8, 0.0, 3.0]),
+            _kp([-1.0, -3.8, 1.75], [-0.4, 0.0, 3.2]),
+            _kp([1.1, -3.6, 1.65], [0.6, 0.0, 3.0]),
+            _kp([3.2, -4.2, 1.7], [1.9, 0.0, 3.1]),
+        ],
+    },
+}
+
+PRESETS: dict[str, dict] = {"room": ROOM, "desk": DESK, "facade": FACADE}
