@@ -44,7 +44,9 @@ def load_schema(path: str | Path = SCHEMA_PATH) -> dict:
     return yaml.safe_load(Path(path).read_text())
 
 
-def validate_config(config: dict[str, Any], schema_path: str | Path = SCHEMA_PATH) -> dict[str, Any]:
+def validate_config(
+    config: dict[str, Any], schema_path: str | Path = SCHEMA_PATH
+) -> dict[str, Any]:
     """Validate ``config`` in place against the schema, filling in defaults; returns it.
 
     Raises :class:`ConfigError` whose message names the offending key path.
@@ -65,7 +67,9 @@ def load_config(path: str | Path, check: bool = True) -> dict[str, Any]:
     try:
         validate_config(config)
         if check:
-            check_config(config, base_dir=path.parent.parent if path.parent.name == "config" else Path.cwd())
+            check_config(
+                config, base_dir=path.parent.parent if path.parent.name == "config" else Path.cwd()
+            )
     except ConfigError as e:
         raise ConfigError(f"{path}: {e}") from None
     return config
@@ -86,14 +90,20 @@ def check_config(config: dict[str, Any], base_dir: str | Path = ".") -> None:
             if not rec.exists():
                 raise ConfigError(f"config key 'datasets.{name}.recording': no such file {rec}")
             if ds.get("calibration") and not (base_dir / ds["calibration"]).exists():
-                raise ConfigError(f"config key 'datasets.{name}.calibration': no such file {ds['calibration']}")
+                raise ConfigError(
+                    f"config key 'datasets.{name}.calibration': no such file {ds['calibration']}"
+                )
             continue
         try:
             from evdense.sim.scene import load_scene
         except ImportError:  # simulator not installed in this build
             continue
         # speed and dynamic_range are range-checked by the schema and do not change the build.
-        key = json.dumps([ds.get(k) for k in ("scene", "duration", "seed")] + [config.get("simulator")], sort_keys=True, default=str)
+        key = json.dumps(
+            [ds.get(k) for k in ("scene", "duration", "seed")] + [config.get("simulator")],
+            sort_keys=True,
+            default=str,
+        )
         if key in built:
             continue
         built.add(key)

@@ -115,8 +115,19 @@ def evaluate_geometry(
     gt_samples = sample_surface(gt, num_samples, seed + 1)
     if len(pts) == 0:
         inf = float("inf")
-        return GeometryMetrics(0, inf, inf, inf, inf, inf, taus, list(relative_thresholds),
-                               [0.0] * len(taus), [0.0] * len(taus), [0.0] * len(taus))
+        return GeometryMetrics(
+            0,
+            inf,
+            inf,
+            inf,
+            inf,
+            inf,
+            taus,
+            list(relative_thresholds),
+            [0.0] * len(taus),
+            [0.0] * len(taus),
+            [0.0] * len(taus),
+        )
     acc = surface_distance(gt, pts)
     if isinstance(recon, o3d.geometry.TriangleMesh):
         comp = surface_distance(recon, gt_samples)

@@ -6,7 +6,9 @@ import numpy as np
 from skimage.metrics import structural_similarity
 
 
-def normalize_intensity(img: np.ndarray, low_pct: float = 1.0, high_pct: float = 99.0) -> np.ndarray:
+def normalize_intensity(
+    img: np.ndarray, low_pct: float = 1.0, high_pct: float = 99.0
+) -> np.ndarray:
     """Robustly rescale an image to [0, 1] by its percentiles (``(H, W)`` float64)."""
     img = np.asarray(img, dtype=np.float64)
     lo, hi = np.percentile(img, [low_pct, high_pct])

@@ -11,7 +11,12 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from evdense.align import apply_sim3_to_poses, camera_centre_errors, interpolate_poses, match_timestamps
+from evdense.align import (
+    apply_sim3_to_poses,
+    camera_centre_errors,
+    interpolate_poses,
+    match_timestamps,
+)
 
 
 @dataclass
@@ -37,7 +42,9 @@ class TrajectoryMetrics:
         return asdict(self)
 
 
-def relative_pose_errors(T_est: np.ndarray, T_gt: np.ndarray, delta: int = 1) -> tuple[np.ndarray, np.ndarray]:
+def relative_pose_errors(
+    T_est: np.ndarray, T_gt: np.ndarray, delta: int = 1
+) -> tuple[np.ndarray, np.ndarray]:
     """Translation (GT units) and rotation (degrees) errors of the motions over ``delta`` poses.
 
     Both trajectories ``(N, 4, 4)`` must already be in the same frame and scale.

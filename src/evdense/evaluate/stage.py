@@ -1,0 +1,266 @@
+"""The evaluation stage: one image source of one dataset against its ground truth.
+
+Monocular SfM recovers the scene up to a similarity, so everything is first aligned to the GT:
+Umeyama Sim(3) on camera centres matched by timestamp, then a scaled ICP of the densest cloud onto
+the GT surface, accepted only when it brings the cloud closer. The aligned products (sparse cloud,
+dense cloud, meshes) are cropped to the GT volume and scored with :mod:`evdense.evaluate.geometry`;
+the trajectory with :mod:`evdense.evaluate.trajectory`; the frames with
+:mod:`evdense.evaluate.images` against GT intensity rendered at their timestamps.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import open3d as o3d
+
+from evdense.align import apply_sim3
+from evdense.evaluate.geometry import bbox_diagonal, evaluate_geometry, sample_surface
+from evdense.evaluate.images import image_metrics, normalize_intensity
+from evdense.evaluate.trajectory import evaluate_trajectory
+from evdense.log import get_logger
+from evdense.poses import read_tum
+
+log = get_logger("evaluate")
+
+
+@dataclass
+class EvalConfig:
+    """Settings of the evaluation (config section ``evaluate``)."""
+
+    relative_thresholds: list[float] = field(default_factory=lambda: [0.0025, 0.005, 0.01, 0.02])
+    """Distance thresholds as fractions of the GT bounding-box diagonal."""
+    default_threshold: float = 0.01
+    """The threshold (one of the above) reported as *the* F-score in tables and plots."""
+    num_samples: int = 200_000
+    """GT surface samples for completeness (and samples of each reconstructed mesh)."""
+    crop_margin: float = 0.02
+    """Reconstructions are cropped to the GT bounding box grown by this fraction of its diagonal."""
+    icp: bool = True
+    """Refine the Sim(3) from camera centres with a scaled ICP onto the GT surface."""
+    icp_max_distance: float = 0.02
+    """ICP correspondence distance, as a fraction of the GT bounding-box diagonal."""
+    image_low_percentile: float = 1.0
+    """Frames and GT are each rescaled to [0, 1] between these percentiles before MSE/PSNR/SSIM."""
+    image_high_percentile: float = 99.0
+    max_image_frames: int = 60
+    """At most this many frames (evenly spaced) are compared with GT intensity."""
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any] | None) -> EvalConfig:
+        d = dict(d or {})
+        unknown = set(d) - set(cls.__dataclass_fields__)
+        if unknown:
+            raise ValueError(f"evaluate: unknown keys {sorted(unknown)}")
+        return cls(**d)
+
+
+def _read_cloud(path: Path) -> np.ndarray:
+    pc = o3d.io.read_point_cloud(str(path))
+    return np.asarray(pc.points, dtype=np.float64)
+
+
+def _read_mesh(path: Path) -> o3d.geometry.TriangleMesh:
+    return o3d.io.read_triangle_mesh(str(path))
+
+
+def _sparse_points(sfm_dir: Path) -> np.ndarray:
+    import pycolmap
+
+    model = sfm_dir / "sparse" / "0"
+    if not model.is_dir():
+        return np.zeros((0, 3))
+    rec = pycolmap.Reconstruction(str(model))
+    return np.array([p.xyz for p in rec.points3D.values()], dtype=np.float64).reshape(-1, 3)
+
+
+def _transform_mesh(mesh: o3d.geometry.TriangleMesh, s: float, R: np.ndarray, t: np.ndarray):
+    out = o3d.geometry.TriangleMesh(mesh)
+    out.vertices = o3d.utility.Vector3dVector(apply_sim3(s, R, t, np.asarray(mesh.vertices)))
+    return out
+
+
+def refine_with_icp(
+    points: np.ndarray, gt_mesh: o3d.geometry.TriangleMesh, max_distance: float, seed: int = 0
+) -> tuple[np.ndarray, dict[str, float]]:
+    """Scaled point-to-point ICP of ``points (N, 3)`` (already roughly aligned) onto GT surface samples.
+
+    Returns the 4x4 similarity to apply after the first alignment, and the fitness / RMSE before
+    and after; the identity when ICP does not improve the inlier RMSE.
+    """
+    src = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
+    dst = o3d.geometry.PointCloud(
+        o3d.utility.Vector3dVector(sample_surface(gt_mesh, 200_000, seed))
+    )
+    before = o3d.pipelines.registration.evaluate_registration(src, dst, max_distance)
+    est = o3d.pipelines.registration.TransformationEstimationPointToPoint(with_scaling=True)
+    crit = o3d.pipelines.registration.ICPConvergenceCriteria(max_iteration=50)
+    res = o3d.pipelines.registration.registration_icp(src, dst, max_distance, np.eye(4), est, crit)
+    info = {
+        "fitness_before": float(before.fitness),
+        "rmse_before": float(before.inlier_rmse),
+        "fitness_after": float(res.fitness),
+        "rmse_after": float(res.inlier_rmse),
+    }
+    better = res.fitness >= before.fitness and (
+        res.inlier_rmse <= before.inlier_rmse or res.fitness > before.fitness
+    )
+    info["accepted"] = bool(better)
+    return (np.asarray(res.transformation) if better else np.eye(4)), info
+
+
+def _apply_h(H: np.ndarray, pts: np.ndarray) -> np.ndarray:
+    return pts @ H[:3, :3].T + H[:3, 3]
+
+
+def _read_frames(frames_dir: Path) -> tuple[list[Path], np.ndarray]:
+    ts_path = frames_dir / "timestamps.txt"
+    if not ts_path.exists():
+        raise ValueError(f"{frames_dir}: no timestamps.txt beside the frames")
+    rows = np.loadtxt(ts_path, ndmin=2, comments="#")
+    paths = [frames_dir / f"{int(i):06d}.png" for i in rows[:, 0]]
+    return paths, rows[:, 1]
+
+
+def evaluate_images(frames_dir: Path, gt_dir: Path, conf: EvalConfig) -> dict[str, Any]:
+    """MSE, PSNR and SSIM of a frames folder against GT intensity rendered at the frames' times."""
+    import imageio.v3 as iio
+
+    from evdense.sim.groundtruth import render_gt_intensity
+
+    paths, ts = _read_frames(frames_dir)
+    if not paths:
+        return {"num_frames": 0}
+    pick = np.unique(
+        np.linspace(0, len(paths) - 1, min(conf.max_image_frames, len(paths))).round().astype(int)
+    )
+    gt = render_gt_intensity(gt_dir, ts[pick])
+    per = []
+    for k, i in enumerate(pick):
+        img = iio.imread(paths[i]).astype(np.float64)
+        if img.ndim == 3:
+            img = img[..., :3].mean(-1)
+        lo, hi = conf.image_low_percentile, conf.image_high_percentile
+        per.append(
+            image_metrics(normalize_intensity(img, lo, hi), normalize_intensity(gt[k], lo, hi))
+        )
+    out = {k: float(np.mean([m[k] for m in per])) for k in ("mse", "psnr", "ssim")}
+    out["num_frames"] = len(per)
+    return out
+
+
+def evaluate_source(
+    gt_dir: str | Path,
+    sfm_dir: str | Path,
+    out_path: str | Path,
+    frames_dir: str | Path | None = None,
+    dense_cloud: str | Path | None = None,
+    meshes: dict[str, str | Path] | None = None,
+    conf: EvalConfig | dict | None = None,
+    labels: dict[str, Any] | None = None,
+) -> dict[str, Any]:
+    """Score one image source of a dataset against GT and write ``out_path`` (JSON).
+
+    Args:
+        gt_dir: the dataset's ``gt/`` folder (``trajectory.txt``, ``mesh.ply``, ``scene.json``).
+        sfm_dir: the SfM output folder (``trajectory.txt``, ``stats.json``, ``sparse/0``).
+        frames_dir: the frames the SfM ran on (image metrics; skipped when None).
+        dense_cloud: the fused dense cloud PLY (skipped when None or missing).
+        meshes: named mesh PLY/OBJ files (e.g. ``{"mesh_visibility": ..., "refined": ...}``).
+        labels: extra fields copied into the JSON (dataset, source, speed, ...).
+    """
+    conf = conf if isinstance(conf, EvalConfig) else EvalConfig.from_dict(conf)
+    gt_dir, sfm_dir, out_path = Path(gt_dir), Path(sfm_dir), Path(out_path)
+    result: dict[str, Any] = {"labels": labels or {}, "config": asdict(conf)}
+    stats_path = sfm_dir / "stats.json"
+    sfm_stats = json.loads(stats_path.read_text()) if stats_path.exists() else {}
+    result["sfm"] = {
+        k: sfm_stats.get(k)
+        for k in (
+            "num_frames",
+            "num_selected",
+            "num_registered",
+            "registered_fraction",
+            "num_points3D",
+            "mean_track_length",
+            "mean_reprojection_error_px",
+        )
+    }
+    gt_mesh = o3d.io.read_triangle_mesh(str(gt_dir / "mesh.ply"))
+    diag = bbox_diagonal(gt_mesh)
+    t_gt, T_gt = read_tum(gt_dir / "trajectory.txt")
+    traj_path = sfm_dir / "trajectory.txt"
+    if not traj_path.exists():
+        raise ValueError(f"{sfm_dir}: no trajectory.txt (did SfM finish?)")
+    t_est, T_est = read_tum(traj_path)
+    traj = evaluate_trajectory(t_est, T_est, t_gt, T_gt)
+    result["trajectory"] = traj.to_dict()
+    from evdense.align import align_trajectory_to_gt
+
+    ce = align_trajectory_to_gt(t_est, T_est, t_gt, T_gt)
+    s, R, t = ce.scale, ce.R, ce.t
+
+    products: dict[str, Any] = {"sparse": _sparse_points(sfm_dir)}
+    if dense_cloud is not None and Path(dense_cloud).exists():
+        products["dense"] = _read_cloud(Path(dense_cloud))
+    for name, p in (meshes or {}).items():
+        if Path(p).exists():
+            products[name] = _read_mesh(Path(p))
+    aligned: dict[str, Any] = {}
+    for name, obj in products.items():
+        if isinstance(obj, np.ndarray):
+            aligned[name] = apply_sim3(s, R, t, obj) if len(obj) else obj
+        else:
+            aligned[name] = _transform_mesh(obj, s, R, t)
+
+    H = np.eye(4)
+    ref = (
+        aligned.get("dense") if "dense" in aligned and len(aligned["dense"]) else aligned["sparse"]
+    )
+    if conf.icp and len(ref) >= 100:
+        H, info = refine_with_icp(ref, gt_mesh, conf.icp_max_distance * diag)
+        result["icp"] = info
+    result["alignment"] = {
+        "scale": s,
+        "R": np.asarray(R).tolist(),
+        "t": np.asarray(t).tolist(),
+        "icp": H.tolist(),
+    }
+
+    geometry = {}
+    for name, obj in aligned.items():
+        if isinstance(obj, np.ndarray):
+            obj = _apply_h(H, obj) if len(obj) else obj
+        else:
+            obj.transform(H)
+        m = evaluate_geometry(
+            obj, gt_mesh, conf.relative_thresholds, conf.num_samples, conf.crop_margin
+        )
+        geometry[name] = m.to_dict()
+        log.info(
+            "%s: %d points, F@%.2g%% = %s",
+            name,
+            m.num_points,
+            100 * conf.default_threshold,
+            _f_at(m.to_dict(), conf.default_threshold),
+        )
+    result["geometry"] = geometry
+    if frames_dir is not None:
+        result["images"] = evaluate_images(Path(frames_dir), gt_dir, conf)
+    out_path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = out_path.with_name(out_path.name + ".partial")
+    tmp.write_text(json.dumps(result, indent=2, default=float))
+    os.replace(tmp, out_path)
+    return result
+
+
+def _f_at(geom: dict, rel: float) -> float | None:
+    for r, f in zip(geom["relative_thresholds"], geom["fscore"], strict=True):
+        if abs(r - rel) < 1e-12:
+            return round(f, 4)
+    return None
