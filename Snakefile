@@ -17,6 +17,7 @@ include: "workflow/rules/simulate.smk"
 include: "workflow/rules/ingest.smk"
 include: "workflow/rules/events.smk"
 include: "workflow/rules/reconstruct.smk"
+include: "workflow/rules/sfm.smk"
 
 
 rule all:

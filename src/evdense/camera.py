@@ -115,10 +115,31 @@ class Camera:
         Path(path).write_text(yaml.safe_dump(self.to_dict(), sort_keys=False))
 
     def colmap_model(self) -> tuple[str, list[float]]:
-        """COLMAP camera model name and parameter list."""
+        """COLMAP camera model name and parameter list.
+
+        COLMAP puts the centre of the top-left pixel at (0.5, 0.5), evdense at (0, 0): the
+        principal point is shifted by +0.5 px here and by -0.5 px in :meth:`from_colmap`.
+        """
+        cx, cy = self.cx + 0.5, self.cy + 0.5
         if self.has_distortion:
-            return "OPENCV", [self.fx, self.fy, self.cx, self.cy, *self.dist]
-        return "PINHOLE", [self.fx, self.fy, self.cx, self.cy]
+            return "OPENCV", [self.fx, self.fy, cx, cy, *self.dist]
+        return "PINHOLE", [self.fx, self.fy, cx, cy]
+
+    @classmethod
+    def from_colmap(cls, model: str, width: int, height: int, params: list[float]) -> Camera:
+        """An evdense camera from COLMAP model parameters (principal point shifted by -0.5 px)."""
+        p = [float(v) for v in params]
+        w, h = int(width), int(height)
+        if model == "PINHOLE":
+            return cls(w, h, p[0], p[1], p[2] - 0.5, p[3] - 0.5)
+        if model == "OPENCV":
+            return cls(w, h, p[0], p[1], p[2] - 0.5, p[3] - 0.5, tuple(p[4:8]))  # type: ignore[arg-type]
+        if model == "SIMPLE_PINHOLE":
+            return cls(w, h, p[0], p[0], p[1] - 0.5, p[2] - 0.5)
+        if model in ("SIMPLE_RADIAL", "RADIAL"):
+            k2 = p[4] if model == "RADIAL" else 0.0
+            return cls(w, h, p[0], p[0], p[1] - 0.5, p[2] - 0.5, (p[3], k2, 0.0, 0.0))
+        raise ValueError(f"COLMAP camera model {model} is not supported (PINHOLE, OPENCV, SIMPLE_PINHOLE, SIMPLE_RADIAL, RADIAL)")
 
     def write_colmap_cameras_txt(self, path: str | Path, camera_id: int = 1) -> None:
         """Write a COLMAP ``cameras.txt`` holding this one camera."""
@@ -170,16 +191,7 @@ def load_camera(path: str | Path) -> Camera:
         if not parts or parts[0].startswith("#"):
             continue
         if len(parts) >= 5 and parts[1] in ("PINHOLE", "SIMPLE_PINHOLE", "OPENCV", "SIMPLE_RADIAL", "RADIAL"):
-            w, h = int(parts[2]), int(parts[3])
-            p = [float(v) for v in parts[4:]]
-            if parts[1] == "PINHOLE":
-                return Camera(w, h, p[0], p[1], p[2], p[3])
-            if parts[1] == "OPENCV":
-                return Camera(w, h, p[0], p[1], p[2], p[3], tuple(p[4:8]))  # type: ignore[arg-type]
-            if parts[1] == "SIMPLE_PINHOLE":
-                return Camera(w, h, p[0], p[0], p[1], p[2])
-            k2 = p[4] if parts[1] == "RADIAL" else 0.0
-            return Camera(w, h, p[0], p[0], p[1], p[2], (p[3], k2, 0.0, 0.0))
+            return Camera.from_colmap(parts[1], int(parts[2]), int(parts[3]), [float(v) for v in parts[4:]])
         break
     raise ValueError(f"{path}: unrecognised calibration file")
 

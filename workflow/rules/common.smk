@@ -57,4 +57,27 @@ def dataset_targets(name):
     if name in SYNTHETIC:
         targets += [f"results/{name}/gt", f"results/{name}/conventional"]
     targets += [f"results/{name}/frames/{src}" for src in event_frame_sources()]
+    targets += [f"results/{name}/sfm/{src}" for src in image_sources(name)]
     return targets
+
+
+def image_sources(name):
+    """Image sources reconstructed for a dataset: events through each method, the conventional
+    camera, and (synthetic scenes) the sharp GT frames, the oracle."""
+    sources = list(event_frame_sources()) + ["conventional"]
+    if name in SYNTHETIC:
+        sources.append("gt")
+    return sources
+
+
+def source_images(dataset, source):
+    """The rule output that holds the frames of an image source (gt/ and conventional/ hold frames/)."""
+    fixed = {"gt": f"results/{dataset}/gt", "oracle": f"results/{dataset}/gt",
+             "conventional": f"results/{dataset}/conventional"}
+    return fixed.get(source, f"results/{dataset}/frames/{source}")
+
+
+def source_frames_dir(dataset, source):
+    """The folder of PNG frames + timestamps.txt of an image source."""
+    base = source_images(dataset, source)
+    return f"{base}/frames" if source in ("gt", "oracle", "conventional") else base

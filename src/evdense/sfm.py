@@ -1,0 +1,812 @@
+"""Structure from motion on a frames folder with pycolmap: SIFT, matching, incremental mapping.
+
+One public stage function, :func:`run_sfm`, turns a frames folder (``000000.png ...`` plus
+``timestamps.txt`` with lines ``index t_seconds``) into one output folder:
+
+- ``sparse/0/*.bin`` (COLMAP binary model) and ``sparse/0_text/*.txt`` (opens in the COLMAP GUI),
+- ``database.db`` (features, matches, verified two-view geometries),
+- ``points3D.ply`` (sparse points), ``trajectory.txt`` (TUM, camera-to-world of registered frames,
+  SfM frame and scale), ``selected_frames.txt`` (``index name t_seconds`` of the frames given to SfM),
+- ``stats.json`` (registration, points, track length, reprojection error, intrinsics, time per step).
+
+The folder is written as ``<out>.partial`` and renamed when complete. When too few frames register,
+``<out>.partial/diagnostics.json`` is kept (features per image, verified pairs) and :class:`SfmError`
+names it.
+
+pycolmap's own option objects are configured from plain dicts (``extraction``, ``matching``,
+``verification``, ``pairing``, ``mapping``): keys are their attribute names, nested dicts (or dotted
+keys) reach sub-objects, strings name enum members. Unknown names raise ``ValueError`` naming the key.
+
+Pixel convention: COLMAP puts the centre of the top-left pixel at (0.5, 0.5), evdense at (0, 0).
+Intrinsics going into and coming out of COLMAP are shifted by 0.5 px here; ``stats.json`` reports
+both conventions.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+import time
+from dataclasses import asdict, dataclass, field, fields
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from evdense.camera import Camera, load_camera
+from evdense.log import get_logger
+from evdense.poses import invert_pose, write_tum
+
+log = get_logger("sfm")
+
+SELECT_METHODS = ("all", "every_k", "count", "change")
+MATCHERS = ("exhaustive", "sequential")
+CAMERA_MODELS = ("SIMPLE_PINHOLE", "PINHOLE", "SIMPLE_RADIAL", "RADIAL", "OPENCV")
+DEVICES = ("auto", "cpu", "cuda")
+COLMAP_LOG_LEVELS = ("INFO", "WARNING", "ERROR")
+
+
+@dataclass
+class SfmConfig:
+    """Settings of structure from motion (the ``sfm`` config section)."""
+
+    select: str = "count"
+    """Frame selection before matching: all, every_k, count (evenly spaced) or change (image change)."""
+    select_every_k: int = 1
+    """select=every_k: keep every k-th frame (the last frame is always kept)."""
+    select_count: int = 60
+    """select=count: number of evenly spaced frames to keep (all when the folder has fewer)."""
+    select_min_change: float = 0.05
+    """select=change: keep a frame when its mean absolute difference to the last kept frame
+    (grey levels in [0, 1], at 1/4 resolution) exceeds this."""
+    max_features: int = 1024
+    """SIFT features per image (pycolmap keeps whole scale levels, so a few more can come out);
+    matching time grows with its square. Sets extraction.sift.max_num_features."""
+    camera_model: str = "SIMPLE_RADIAL"
+    """COLMAP camera model estimated when no calibration is given (one camera shared by all frames)."""
+    calibration: str | None = None
+    """Calibration file (our YAML, VINS YAML, COLMAP cameras.txt); rescaled to the frame size when
+    the aspect ratio matches. None: intrinsics are estimated."""
+    refine_intrinsics: bool = False
+    """With a calibration: refine focal length and distortion in bundle adjustment (else fixed)."""
+    matcher: str = "exhaustive"
+    """exhaustive (all pairs, as in the method) or sequential (neighbours in time, for long sequences)."""
+    loop_closure: bool = True
+    """matcher=sequential: also match all pairs of keyframes (every ``loop_keyframe_every``-th
+    selected frame), which closes loops without a vocabulary tree."""
+    loop_keyframe_every: int = 5
+    """matcher=sequential with loop_closure: keyframe spacing in selected frames."""
+    device: str = "auto"
+    """SIFT extraction and matching device: auto (CUDA when pycolmap was built with it), cpu, cuda."""
+    num_threads: int = -1
+    """CPU threads for extraction, matching and mapping (-1: all cores)."""
+    seed: int = 0
+    """Random seed of RANSAC and the mapper (pycolmap.set_random_seed)."""
+    min_registered_fraction: float = 0.25
+    """Fewer registered frames than this fraction of the selected ones is an error (SfmError)."""
+    min_registered_images: int = 3
+    """Fewer registered frames than this is an error (SfmError)."""
+    colmap_log_level: str = "WARNING"
+    """Lowest level of COLMAP's own log lines (INFO, WARNING, ERROR); they go to stderr."""
+    extraction: dict[str, Any] = field(default_factory=dict)
+    """Attributes of pycolmap.FeatureExtractionOptions (e.g. {sift: {max_num_features: 4096}})."""
+    matching: dict[str, Any] = field(default_factory=dict)
+    """Attributes of pycolmap.FeatureMatchingOptions (e.g. {sift: {max_ratio: 0.8}, guided_matching: true})."""
+    verification: dict[str, Any] = field(default_factory=dict)
+    """Attributes of pycolmap.TwoViewGeometryOptions (RANSAC geometric verification, e.g. {ransac: {max_error: 4}})."""
+    pairing: dict[str, Any] = field(default_factory=dict)
+    """Attributes of pycolmap.ExhaustivePairingOptions or SequentialPairingOptions (e.g. {overlap: 10})."""
+    mapping: dict[str, Any] = field(default_factory=dict)
+    """Attributes of pycolmap.IncrementalPipelineOptions (e.g. {mapper: {init_min_tri_angle: 8}})."""
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any] | None) -> SfmConfig:
+        """Build from a config section; unknown keys raise ``ValueError`` naming them."""
+        d = dict(d or {})
+        known = {f.name for f in fields(cls)}
+        unknown = sorted(set(d) - known)
+        if unknown:
+            raise ValueError(
+                f"config section 'sfm': unknown key(s) {unknown}; known: {sorted(known)}"
+            )
+        cfg = cls(**d)
+        cfg.check()
+        return cfg
+
+    def check(self) -> None:
+        """Raise ``ValueError`` naming the key of the first invalid value."""
+        for key, allowed in (
+            ("select", SELECT_METHODS),
+            ("matcher", MATCHERS),
+            ("camera_model", CAMERA_MODELS),
+            ("device", DEVICES),
+            ("colmap_log_level", COLMAP_LOG_LEVELS),
+        ):
+            if getattr(self, key) not in allowed:
+                raise ValueError(
+                    f"config key 'sfm.{key}': {getattr(self, key)!r} is not one of {list(allowed)}"
+                )
+        for key in ("select_every_k", "select_count", "loop_keyframe_every", "max_features"):
+            if int(getattr(self, key)) < 1:
+                raise ValueError(f"config key 'sfm.{key}': must be >= 1, got {getattr(self, key)}")
+        if self.calibration == "dataset":
+            raise ValueError(
+                "config key 'sfm.calibration': 'dataset' is resolved to a file by the workflow rule; "
+                "give a file path when calling run_sfm directly"
+            )
+        if self.calibration and not Path(self.calibration).is_file():
+            raise ValueError(f"config key 'sfm.calibration': no such file {self.calibration}")
+        if not 0 <= self.min_registered_fraction <= 1:
+            raise ValueError(
+                f"config key 'sfm.min_registered_fraction': must be in [0, 1], got {self.min_registered_fraction}"
+            )
+
+
+class SfmError(RuntimeError):
+    """SfM registered too few frames; the message says why and where the diagnostics JSON is."""
+
+    def __init__(self, message: str, diagnostics_path: Path | None = None):
+        super().__init__(message)
+        self.diagnostics_path = diagnostics_path
+
+
+# ---- pycolmap option objects from dicts -------------------------------------------------------
+def _option_names(obj: Any) -> list[str]:
+    try:
+        return sorted(obj.todict().keys())
+    except (AttributeError, TypeError):
+        return sorted(
+            a for a in dir(obj) if not a.startswith("_") and not callable(getattr(obj, a))
+        )
+
+
+def _coerce(value: Any, current: Any, path: str) -> Any:
+    """Make a config value fit the type of the option it sets: integral floats for integers, and
+    strings of numbers or booleans (Snakemake's ``--config`` hands nested values as strings)."""
+    if isinstance(value, str) and isinstance(current, bool):
+        low = value.strip().lower()
+        if low in ("true", "yes", "1", "false", "no", "0"):
+            return low in ("true", "yes", "1")
+    elif isinstance(value, str) and isinstance(current, int | float):
+        try:
+            value = float(value) if isinstance(current, float) else int(value)
+        except ValueError:
+            try:
+                value = float(value)
+            except ValueError:
+                return value  # left to setattr's error
+    if isinstance(current, int) and not isinstance(current, bool) and isinstance(value, float):
+        if not value.is_integer():
+            raise ValueError(f"config key '{path}': expected an integer, got {value}")
+        return int(value)
+    if isinstance(current, set) and isinstance(value, list):
+        return set(value)
+    return value
+
+
+def set_options(obj: Any, values: dict[str, Any], where: str) -> Any:
+    """Set attributes of a pycolmap options object from a (nested) dict; returns ``obj``.
+
+    ``where`` is the config key path used in error messages (e.g. ``sfm.extraction``). Dotted keys
+    (``sift.max_num_features``) and nested dicts reach sub-objects; strings name enum members;
+    integral floats and strings of numbers are accepted for numeric options. Raises ``ValueError`` naming the key when the
+    option does not exist or the value has the wrong type.
+    """
+    for key, value in (values or {}).items():
+        head, _, rest = str(key).partition(".")
+        path = f"{where}.{head}"
+        names = _option_names(obj)
+        if head not in names:
+            raise ValueError(
+                f"config key '{path}': pycolmap.{type(obj).__name__} has no option '{head}'; known options: {names}"
+            )
+        current = getattr(obj, head)
+        if rest:
+            value = {rest: value}
+        if isinstance(value, dict):
+            if not hasattr(current, "todict"):
+                raise ValueError(
+                    f"config key '{path}': option is a value ({current!r}), not a group of options"
+                )
+            set_options(current, value, path)
+            continue
+        if hasattr(type(current), "__members__") and isinstance(value, str):  # pybind11 enum
+            members = type(current).__members__
+            if value not in members:
+                raise ValueError(f"config key '{path}': {value!r} is not one of {list(members)}")
+            value = members[value]
+        else:
+            value = _coerce(value, current, path)
+        try:
+            setattr(obj, head, value)
+        except (TypeError, ValueError) as e:
+            raise ValueError(
+                f"config key '{path}': cannot set {value!r} ({type(value).__name__}); expected "
+                f"{type(current).__name__} like the default {current!r} ({type(e).__name__})"
+            ) from None
+    return obj
+
+
+# ---- frames folders ---------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Frame:
+    """One frame of a frames folder."""
+
+    index: int
+    """Frame index from timestamps.txt."""
+    name: str
+    """File name inside the frames folder (``000000.png``)."""
+    t: float
+    """Timestamp, seconds."""
+
+
+def resolve_frames_dir(path: str | Path) -> Path:
+    """The folder holding the PNGs and ``timestamps.txt``: ``path`` itself or ``path/frames``."""
+    path = Path(path)
+    if (path / "timestamps.txt").is_file():
+        return path
+    if (path / "frames" / "timestamps.txt").is_file():
+        return path / "frames"
+    raise ValueError(f"{path}: no timestamps.txt here or in {path / 'frames'}; not a frames folder")
+
+
+def read_frames(frames_dir: str | Path) -> list[Frame]:
+    """Read a frames folder: ``timestamps.txt`` lines ``index t_seconds`` and ``<index:06d>.png``.
+
+    Raises ``ValueError`` naming the file when a line is malformed or a PNG is missing.
+    """
+    frames_dir = resolve_frames_dir(frames_dir)
+    ts_path = frames_dir / "timestamps.txt"
+    frames = []
+    for lineno, line in enumerate(ts_path.read_text().splitlines(), 1):
+        s = line.strip()
+        if not s or s.startswith("#"):
+            continue
+        parts = s.split()
+        if len(parts) < 2:
+            raise ValueError(f"{ts_path}:{lineno}: expected 'index t_seconds', got {s!r}")
+        try:
+            index, t = int(parts[0]), float(parts[1])
+        except ValueError:
+            raise ValueError(f"{ts_path}:{lineno}: expected 'index t_seconds', got {s!r}") from None
+        name = f"{index:06d}.png"
+        if not (frames_dir / name).is_file():
+            raise ValueError(
+                f"{ts_path}:{lineno}: frame {index} listed but {frames_dir / name} does not exist"
+            )
+        frames.append(Frame(index, name, t))
+    if not frames:
+        raise ValueError(f"{ts_path}: no frames listed")
+    return frames
+
+
+def _load_small_grey(path: Path, factor: int = 4) -> np.ndarray:
+    import imageio.v3 as iio
+
+    img = np.asarray(iio.imread(path), dtype=np.float32)
+    if img.ndim == 3:
+        img = img[..., :3].mean(axis=-1)
+    img /= 255.0 if img.max() > 1.5 else 1.0
+    h, w = (img.shape[0] // factor) * factor, (img.shape[1] // factor) * factor
+    if h == 0 or w == 0:
+        return img
+    return img[:h, :w].reshape(h // factor, factor, w // factor, factor).mean(axis=(1, 3))
+
+
+def select_frames(frames: list[Frame], frames_dir: Path, cfg: SfmConfig) -> list[Frame]:
+    """Frames given to SfM, in time order, following ``cfg.select`` (the first and last are kept)."""
+    n = len(frames)
+    if cfg.select == "all" or n <= 2:
+        return list(frames)
+    if cfg.select == "every_k":
+        idx = list(range(0, n, cfg.select_every_k))
+    elif cfg.select == "count":
+        if cfg.select_count >= n:
+            return list(frames)
+        idx = np.unique(np.round(np.linspace(0, n - 1, cfg.select_count)).astype(int)).tolist()
+    else:  # change
+        idx = [0]
+        ref = _load_small_grey(frames_dir / frames[0].name)
+        for i in range(1, n):
+            img = _load_small_grey(frames_dir / frames[i].name)
+            if img.shape != ref.shape:
+                raise ValueError(
+                    f"{frames_dir / frames[i].name}: size {img.shape} differs from the first frame's"
+                )
+            if float(np.abs(img - ref).mean()) > cfg.select_min_change:
+                idx.append(i)
+                ref = img
+    if idx[-1] != n - 1:
+        idx.append(n - 1)
+    return [frames[i] for i in idx]
+
+
+# ---- the stage --------------------------------------------------------------------------------
+def _device(cfg: SfmConfig):
+    import pycolmap
+
+    if cfg.device == "cuda" and not pycolmap.has_cuda:
+        raise ValueError(
+            "config key 'sfm.device': 'cuda' requested but this pycolmap was built without CUDA"
+        )
+    use_cuda = cfg.device == "cuda" or (cfg.device == "auto" and pycolmap.has_cuda)
+    return (pycolmap.Device.cuda if use_cuda else pycolmap.Device.cpu), use_cuda
+
+
+def _calibrated_camera(cfg: SfmConfig, width: int, height: int) -> Camera:
+    cam = load_camera(cfg.calibration)
+    if (cam.width, cam.height) != (width, height):
+        factor = width / cam.width
+        if abs(height / cam.height - factor) > 1e-3 * factor:
+            raise ValueError(
+                f"{cfg.calibration}: calibration is {cam.width}x{cam.height}, frames are {width}x{height} "
+                "(different aspect ratio; cannot rescale)"
+            )
+        log.warning(
+            "calibration %dx%d rescaled to the frames' %dx%d", cam.width, cam.height, width, height
+        )
+        cam = cam.scaled(factor)
+    return cam
+
+
+def _colmap_params(cam: Camera) -> tuple[str, list[float]]:
+    """COLMAP model and parameters of an evdense camera (principal point shifted by +0.5 px)."""
+    return cam.colmap_model()
+
+
+def _image_size(path: Path) -> tuple[int, int]:
+    import imageio.v3 as iio
+
+    props = iio.improps(path)
+    h, w = props.shape[:2]
+    return int(w), int(h)
+
+
+def _database_diagnostics(database_path: Path, min_inliers: int) -> dict[str, Any]:
+    """Features per image and matched / verified pairs, read back from the COLMAP database."""
+    import pycolmap
+
+    db = pycolmap.Database.open(database_path)
+    try:
+        images = db.read_all_images()
+        kp = {im.name: int(db.num_keypoints_for_image(im.image_id)) for im in images}
+        pair_ids, tvgs = db.read_two_view_geometries()
+        bad = {
+            pycolmap.TwoViewGeometryConfiguration.UNDEFINED,
+            pycolmap.TwoViewGeometryConfiguration.DEGENERATE,
+            pycolmap.TwoViewGeometryConfiguration.WATERMARK,
+        }
+        inliers = [len(g.inlier_matches) for g in tvgs if g.config not in bad]
+        verified = int(sum(n >= min_inliers for n in inliers))
+        per_image_verified = {im.name: 0 for im in images}
+        id_to_name = {im.image_id: im.name for im in images}
+        for pid, g in zip(pair_ids, tvgs, strict=True):
+            if g.config in bad or len(g.inlier_matches) < min_inliers:
+                continue
+            a, b = pycolmap.pair_id_to_image_pair(pid)
+            for i in (a, b):
+                if i in id_to_name:
+                    per_image_verified[id_to_name[i]] += 1
+        counts = np.array(list(kp.values()) or [0])
+        return {
+            "num_images": len(images),
+            "features_per_image": {
+                "min": int(counts.min()),
+                "median": float(np.median(counts)),
+                "max": int(counts.max()),
+            },
+            "features": kp,
+            "matched_pairs": int(db.num_matched_image_pairs()),
+            "verified_pairs": verified,
+            "verified_pairs_min_inliers": min_inliers,
+            "inliers_per_verified_pair_median": float(np.median(inliers)) if inliers else 0.0,
+            "images_without_verified_pair": sorted(
+                n for n, c in per_image_verified.items() if c == 0
+            ),
+        }
+    finally:
+        db.close()
+
+
+def _write_pairs_file(path: Path, names: list[str], keyframe_every: int) -> int:
+    keys = names[::keyframe_every]
+    if keys[-1] != names[-1]:
+        keys.append(names[-1])
+    lines = [f"{a} {b}" for i, a in enumerate(keys) for b in keys[i + 1 :]]
+    path.write_text("\n".join(lines) + "\n")
+    return len(lines)
+
+
+def _trajectory(rec, by_name: dict[str, Frame]) -> tuple[np.ndarray, np.ndarray, list[str]]:
+    """Registered frames' timestamps (s), camera-to-world poses ``(N, 4, 4)`` and names, in time order."""
+    rows = []
+    for im in rec.images.values():
+        if not im.has_pose:
+            continue
+        T_cw = np.eye(4)
+        T_cw[:3, :] = im.cam_from_world().matrix()
+        rows.append((by_name[im.name].t, invert_pose(T_cw), im.name))
+    rows.sort(key=lambda r: r[0])
+    if not rows:
+        return np.zeros(0), np.zeros((0, 4, 4)), []
+    return np.array([r[0] for r in rows]), np.stack([r[1] for r in rows]), [r[2] for r in rows]
+
+
+def _camera_stats(rec) -> dict[str, Any]:
+    cam = next(iter(rec.cameras.values()))
+    out: dict[str, Any] = {
+        "model": cam.model_name,
+        "width": int(cam.width),
+        "height": int(cam.height),
+        "params_colmap": [float(p) for p in cam.params],
+        "params_info": cam.params_info,
+        "focal_length_x": float(cam.focal_length_x),
+        "focal_length_y": float(cam.focal_length_y),
+        "focal_length": float(cam.mean_focal_length()),
+        "cx": float(cam.principal_point_x) - 0.5,
+        "cy": float(cam.principal_point_y) - 0.5,
+    }
+    if len(rec.cameras) > 1:
+        out["num_cameras"] = len(rec.cameras)
+    return out
+
+
+def _write_json(path: Path, data: dict[str, Any]) -> None:
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(json.dumps(data, indent=2, default=str))
+    tmp.replace(path)
+
+
+@dataclass
+class _Options:
+    """The pycolmap option objects of one run."""
+
+    device: Any
+    use_cuda: bool
+    threads: int
+    extraction: Any
+    matching: Any
+    verification: Any
+    pairing: Any
+    mapping: Any
+    reader: Any
+    fixed_intrinsics: bool
+
+
+def _pycolmap_options(cfg: SfmConfig, threads: int, width: int, height: int) -> _Options:
+    """Build pycolmap's option objects: our settings first, then the config's pass-through dicts
+    (which win). Raises ``ValueError`` naming the key of a bad option."""
+    import pycolmap
+
+    device, use_cuda = _device(cfg)
+    extraction = pycolmap.FeatureExtractionOptions()
+    extraction.num_threads = threads
+    extraction.use_gpu = use_cuda
+    extraction.sift.max_num_features = int(cfg.max_features)
+    set_options(extraction, cfg.extraction, "sfm.extraction")
+
+    matching = pycolmap.FeatureMatchingOptions()
+    matching.num_threads = threads
+    matching.use_gpu = use_cuda
+    set_options(matching, cfg.matching, "sfm.matching")
+
+    verification = pycolmap.TwoViewGeometryOptions()
+    verification.ransac.random_seed = cfg.seed
+    set_options(verification, cfg.verification, "sfm.verification")
+
+    if cfg.matcher == "exhaustive":
+        pairing = pycolmap.ExhaustivePairingOptions()
+    else:
+        pairing = pycolmap.SequentialPairingOptions()
+        pairing.num_threads = threads
+    set_options(pairing, cfg.pairing, "sfm.pairing")
+
+    reader = pycolmap.ImageReaderOptions()
+    fixed = False
+    if cfg.calibration:
+        cam = _calibrated_camera(cfg, width, height)
+        model, params = _colmap_params(cam)
+        reader.camera_model = model
+        reader.camera_params = ",".join(f"{p:.10g}" for p in params)
+        fixed = not cfg.refine_intrinsics
+        log.info(
+            "camera from %s: %s %s (%s)",
+            cfg.calibration,
+            model,
+            params,
+            "fixed" if fixed else "refined",
+        )
+    else:
+        reader.camera_model = cfg.camera_model
+
+    mapping = pycolmap.IncrementalPipelineOptions()
+    mapping.num_threads = threads
+    mapping.random_seed = cfg.seed
+    if fixed:
+        mapping.ba_refine_focal_length = False
+        mapping.ba_refine_principal_point = False
+        mapping.ba_refine_extra_params = False
+        mapping.mapper.abs_pose_refine_focal_length = False
+        mapping.mapper.abs_pose_refine_extra_params = False
+    set_options(mapping, cfg.mapping, "sfm.mapping")
+    return _Options(
+        device,
+        use_cuda,
+        threads,
+        extraction,
+        matching,
+        verification,
+        pairing,
+        mapping,
+        reader,
+        fixed,
+    )
+
+
+def _match(database: Path, names: list[str], cfg: SfmConfig, opts: _Options, work: Path) -> None:
+    import pycolmap
+
+    if cfg.matcher == "exhaustive":
+        log.info("matching exhaustively: %d pairs", len(names) * (len(names) - 1) // 2)
+        pycolmap.match_exhaustive(
+            database, opts.matching, opts.pairing, opts.verification, device=opts.device
+        )
+        return
+    log.info("matching sequentially (overlap %d)", opts.pairing.overlap)
+    pycolmap.match_sequential(
+        database, opts.matching, opts.pairing, opts.verification, device=opts.device
+    )
+    if cfg.loop_closure and len(names) > 2:
+        pairs_path = work / "loop_pairs.txt"
+        n_pairs = _write_pairs_file(pairs_path, names, cfg.loop_keyframe_every)
+        log.info("loop closure: matching %d keyframe pairs", n_pairs)
+        imported = pycolmap.ImportedPairingOptions()
+        imported.match_list_path = pairs_path
+        pycolmap.match_image_pairs(
+            database, opts.matching, imported, opts.verification, device=opts.device
+        )
+
+
+def _map(
+    database: Path, frames_dir: Path, mapper_dir: Path, opts: _Options, n_images: int
+) -> list[Any]:
+    """Incremental mapping with bundle adjustment; returns the models, largest first."""
+    import pycolmap
+
+    state = {"n": 0, "last": time.monotonic()}
+
+    def on_next_image() -> None:
+        state["n"] += 1
+        now = time.monotonic()
+        if now - state["last"] >= 10.0:
+            state["last"] = now
+            log.info("mapping: %d registration steps (%d frames selected)", state["n"], n_images)
+
+    mapper_dir.mkdir()
+    recs = pycolmap.incremental_mapping(
+        database, frames_dir, mapper_dir, opts.mapping, next_image_callback=on_next_image
+    )
+    return sorted(recs.values(), key=lambda r: r.num_reg_images(), reverse=True)
+
+
+def run_sfm(
+    frames_dir: str | Path,
+    out_dir: str | Path,
+    config: SfmConfig | dict[str, Any] | None = None,
+    num_threads: int | None = None,
+) -> dict[str, Any]:
+    """Run pycolmap SfM on a frames folder and write the model folder ``out_dir`` (see module doc).
+
+    Args:
+        frames_dir: folder with ``<index:06d>.png`` and ``timestamps.txt`` (or its parent holding
+            ``frames/``).
+        out_dir: output folder, replaced when it exists; built as ``<out_dir>.partial``.
+        config: :class:`SfmConfig` or the ``sfm`` config section.
+        num_threads: overrides ``config.num_threads`` (Snakemake's ``threads``).
+
+    Returns the statistics written to ``stats.json``. Raises :class:`SfmError` when fewer than
+    ``min_registered_images`` or ``min_registered_fraction`` of the selected frames register,
+    ``ValueError`` on a bad frames folder or option (before anything is written).
+    """
+    import pycolmap
+
+    cfg = config if isinstance(config, SfmConfig) else SfmConfig.from_dict(config)
+    cfg.check()
+    threads = int(num_threads if num_threads is not None else cfg.num_threads)
+    frames_dir = resolve_frames_dir(frames_dir)
+    out_dir = Path(out_dir)
+    frames = read_frames(frames_dir)
+    width, height = _image_size(frames_dir / frames[0].name)
+    opts = _pycolmap_options(cfg, threads, width, height)  # a bad option fails before any work
+
+    work = out_dir.with_name(out_dir.name + ".partial")
+    if work.exists():
+        shutil.rmtree(work)
+    work.mkdir(parents=True)
+    times: dict[str, float] = {}
+
+    t0 = time.perf_counter()
+    selected = select_frames(frames, frames_dir, cfg)
+    times["select_s"] = time.perf_counter() - t0
+    names = [f.name for f in selected]
+    by_name = {f.name: f for f in selected}
+    (work / "selected_frames.txt").write_text(
+        "# index name t_seconds (frames given to SfM)\n"
+        + "".join(f"{f.index} {f.name} {f.t:.9f}\n" for f in selected)
+    )
+    log.info(
+        "%s: %d frames (%dx%d), %d selected (%s)",
+        frames_dir,
+        len(frames),
+        width,
+        height,
+        len(selected),
+        cfg.select,
+    )
+
+    database = work / "database.db"
+    mapper_dir = work / "mapper"
+    old_level = pycolmap.logging.minloglevel
+    pycolmap.logging.minloglevel = getattr(pycolmap.logging, cfg.colmap_log_level)
+    pycolmap.set_random_seed(cfg.seed)
+    try:
+        t0 = time.perf_counter()
+        log.info(
+            "extracting SIFT features (%s, %d threads)", "cuda" if opts.use_cuda else "cpu", threads
+        )
+        pycolmap.extract_features(
+            database,
+            frames_dir,
+            image_names=names,
+            camera_mode=pycolmap.CameraMode.SINGLE,
+            reader_options=opts.reader,
+            extraction_options=opts.extraction,
+            device=opts.device,
+        )
+        times["extract_s"] = time.perf_counter() - t0
+
+        t0 = time.perf_counter()
+        _match(database, names, cfg, opts, work)
+        times["match_s"] = time.perf_counter() - t0
+        diagnostics = _database_diagnostics(database, opts.mapping.min_num_matches)
+        log.info(
+            "features per image: median %.0f (min %d); verified pairs: %d of %d matched (%.1f s)",
+            diagnostics["features_per_image"]["median"],
+            diagnostics["features_per_image"]["min"],
+            diagnostics["verified_pairs"],
+            diagnostics["matched_pairs"],
+            times["match_s"],
+        )
+
+        t0 = time.perf_counter()
+        log.info("incremental mapping and bundle adjustment")
+        models = _map(database, frames_dir, mapper_dir, opts, len(names))
+        times["map_s"] = time.perf_counter() - t0
+    finally:
+        pycolmap.logging.minloglevel = old_level
+
+    n_reg = models[0].num_reg_images() if models else 0
+    needed = max(
+        1, cfg.min_registered_images, int(np.ceil(cfg.min_registered_fraction * len(names)))
+    )
+    diagnostics["models"] = [
+        {"registered": r.num_reg_images(), "points": r.num_points3D()} for r in models
+    ]
+    if n_reg < needed:
+        diagnostics.update(
+            reason="too few registered frames",
+            registered=n_reg,
+            selected=len(names),
+            needed=needed,
+            frames_dir=str(frames_dir),
+            config=asdict(cfg),
+            time_s=times,
+        )
+        diag_path = work / "diagnostics.json"
+        _write_json(diag_path, diagnostics)
+        fpi = diagnostics["features_per_image"]
+        message = (
+            f"SfM on {frames_dir}: {n_reg} of {len(names)} selected frames registered (need {needed}). "
+            f"Features per image: median {fpi['median']:.0f}, min {fpi['min']}; "
+            f"verified pairs (>= {opts.mapping.min_num_matches} inliers): {diagnostics['verified_pairs']} of "
+            f"{diagnostics['matched_pairs']} matched; {len(diagnostics['images_without_verified_pair'])} frames "
+            f"without any verified pair. Diagnostics: {diag_path}"
+        )
+        log.error(message)
+        raise SfmError(message, diag_path)
+    rec = models[0]
+    if len(models) > 1:
+        log.warning(
+            "%d models; keeping the largest (%d frames), others: %s",
+            len(models),
+            n_reg,
+            [m.num_reg_images() for m in models[1:]],
+        )
+
+    t0 = time.perf_counter()
+    shutil.rmtree(mapper_dir)
+    model_dir, text_dir = work / "sparse" / "0", work / "sparse" / "0_text"
+    model_dir.mkdir(parents=True)
+    text_dir.mkdir(parents=True)
+    rec.write_binary(model_dir)
+    rec.write_text(text_dir)
+    rec.export_PLY(work / "points3D.ply")
+    t_reg, T_reg, reg_names = _trajectory(rec, by_name)
+    write_tum(work / "trajectory.txt", t_reg, T_reg)
+    times["write_s"] = time.perf_counter() - t0
+
+    stats: dict[str, Any] = {
+        "frames_dir": str(frames_dir.resolve()),
+        "num_frames": len(frames),
+        "num_selected": len(names),
+        "num_registered": n_reg,
+        "registered_fraction": n_reg / len(names),
+        "unregistered": sorted(set(names) - set(reg_names)),
+        "num_points3D": rec.num_points3D(),
+        "mean_track_length": float(rec.compute_mean_track_length()),
+        "mean_observations_per_image": float(rec.compute_mean_observations_per_reg_image()),
+        "mean_reprojection_error_px": float(rec.compute_mean_reprojection_error()),
+        "camera": _camera_stats(rec),
+        "intrinsics_source": cfg.calibration or "estimated",
+        "intrinsics_fixed": opts.fixed_intrinsics,
+        "pixel_convention": "camera.cx/cy: evdense (top-left pixel centre at 0,0); params_colmap: COLMAP (0.5,0.5)",
+        "other_models": diagnostics["models"][1:],
+        "device": "cuda" if opts.use_cuda else "cpu",
+        "num_threads": threads,
+        "time_s": {**times, "total_s": sum(times.values())},
+        "diagnostics": {k: v for k, v in diagnostics.items() if k not in ("features", "models")},
+        "config": asdict(cfg),
+        "pycolmap_version": pycolmap.__version__,
+    }
+    _write_json(work / "stats.json", stats)
+    if out_dir.exists():
+        shutil.rmtree(out_dir)
+    work.replace(out_dir)
+    log.info(
+        "SfM done: %d/%d frames registered, %d points, track length %.2f, reprojection error %.3f px, "
+        "f = %.2f px (%.1f s) -> %s",
+        n_reg,
+        len(names),
+        stats["num_points3D"],
+        stats["mean_track_length"],
+        stats["mean_reprojection_error_px"],
+        stats["camera"]["focal_length"],
+        stats["time_s"]["total_s"],
+        out_dir,
+    )
+    return stats
+
+
+def read_sfm_trajectory(sfm_dir: str | Path) -> tuple[np.ndarray, np.ndarray]:
+    """Timestamps ``(N,)`` (s) and camera-to-world poses ``(N, 4, 4)`` of an SfM output folder
+    (SfM frame and scale)."""
+    from evdense.poses import read_tum
+
+    return read_tum(Path(sfm_dir) / "trajectory.txt")
+
+
+def main(argv: list[str] | None = None) -> None:
+    """``python -m evdense.sfm FRAMES_DIR OUT_DIR [--config sfm.yaml] [--threads N]``."""
+    import yaml
+
+    from evdense.log import setup_logging
+
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("frames_dir")
+    ap.add_argument("out_dir")
+    ap.add_argument(
+        "--config", help="YAML holding the sfm section (or a whole config with an 'sfm' key)"
+    )
+    ap.add_argument("--threads", type=int, default=None)
+    args = ap.parse_args(argv)
+    setup_logging()
+    conf = {}
+    if args.config:
+        conf = yaml.safe_load(Path(args.config).read_text()) or {}
+        conf = conf.get("sfm", conf)
+    run_sfm(args.frames_dir, args.out_dir, conf, num_threads=args.threads)
+
+
+if __name__ == "__main__":
+    main()

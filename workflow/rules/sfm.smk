@@ -1,0 +1,48 @@
+# Structure from motion (src/evdense/sfm.py): a frames folder -> COLMAP model, database, sparse
+# points, trajectory and statistics in results/{dataset}/sfm/{source}/.
+# {source} names an image source: gt (sharp GT frames), conventional (the frame camera) or a
+# reconstructed-frames folder results/{dataset}/frames/{source} (e.g. firenet_n25000_b5).
+# On failure (too few registered frames) results/{dataset}/sfm/{source}.partial/diagnostics.json
+# says why; Snakemake does not delete it since it is not a declared output.
+
+
+def sfm_inputs(wildcards):
+    """The rule output holding the frames, and the calibration file when config sfm.calibration
+    is `dataset` on a synthetic scene (its GT intrinsics)."""
+    inputs = {"images": source_images(wildcards.dataset, wildcards.source)}
+    if config["sfm"]["calibration"] == "dataset" and wildcards.dataset in SYNTHETIC:
+        inputs["gt"] = f"results/{wildcards.dataset}/gt"
+    return inputs
+
+
+def sfm_conf(wildcards):
+    """The sfm config section with `calibration: dataset` resolved to a file."""
+    conf = dict(config["sfm"])
+    if conf["calibration"] == "dataset":
+        d = wildcards.dataset
+        ds = DATASETS[d]
+        conf["calibration"] = (
+            f"results/{d}/gt/intrinsics.yaml"
+            if d in SYNTHETIC
+            else ds.get("calibration")
+        )
+    return conf
+
+
+rule run_sfm:
+    input:
+        unpack(sfm_inputs),
+    output:
+        model=directory("results/{dataset}/sfm/{source}"),
+    log:
+        "results/{dataset}/logs/run_sfm/{source}.log",
+    benchmark:
+        "results/{dataset}/benchmarks/run_sfm/{source}.tsv"
+    wildcard_constraints:
+        source=r"[A-Za-z0-9_\-]+",
+    threads: 2
+    params:
+        frames=lambda w: source_frames_dir(w.dataset, w.source),
+        conf=sfm_conf,
+    script:
+        "../scripts/run_sfm.py"
