@@ -3,11 +3,11 @@
 
 import re
 
-from evdense.config import check_config
+from evdense.config import all_datasets, check_config
 
 check_config(config, base_dir=workflow.basedir)
 
-DATASETS = dict(config["datasets"])
+DATASETS = all_datasets(config)
 SYNTHETIC = [name for name, ds in DATASETS.items() if "scene" in ds]
 RECORDINGS = [name for name, ds in DATASETS.items() if "recording" in ds]
 
@@ -45,10 +45,26 @@ def default_window_spec():
     return window_spec(WindowConfig.from_dict(config["events"]["window"]))
 
 
+def window_specs():
+    """Window specs of event frames: the configured windows, or one per sweep.num_events."""
+    from evdense.events.windows import WindowConfig, window_spec
+
+    sizes = config["sweep"]["num_events"]
+    if not sizes:
+        return [default_window_spec()]
+    base = dict(config["events"]["window"])
+    return [window_spec(WindowConfig.from_dict({**base, "num_events": n})) for n in sizes]
+
+
 def event_frame_sources():
-    """Names of the event-based frame sources: {method}_{win}_b{bins} for each configured method."""
-    win, bins = default_window_spec(), config["events"]["voxel"]["bins"]
-    return [f"{m}_{win}_b{bins}" for m in config["reconstruct"]["methods"]]
+    """Names of the event-based frame sources: {method}_{win}_b{bins} over methods, windows and bins."""
+    bins_list = config["sweep"]["bins"] or [config["events"]["voxel"]["bins"]]
+    return [
+        f"{m}_{win}_b{b}"
+        for m in config["reconstruct"]["methods"]
+        for win in window_specs()
+        for b in bins_list
+    ]
 
 
 def dataset_targets(name):
@@ -81,3 +97,17 @@ def source_frames_dir(dataset, source):
     """The folder of PNG frames + timestamps.txt of an image source."""
     base = source_images(dataset, source)
     return f"{base}/frames" if source in ("gt", "oracle", "conventional") else base
+
+
+def run_labels(dataset, source):
+    """Fields that identify a run in the metrics table."""
+    ds = DATASETS[dataset]
+    kind = source if source in ("gt", "conventional", "oracle") else "events"
+    labels = {"dataset": dataset, "source": source, "source_kind": kind}
+    if "scene" in ds:
+        scene = ds["scene"] if isinstance(ds["scene"], str) else ds["scene"].get("name", "custom")
+        labels.update(scene=scene, speed=float(ds["speed"]), dynamic_range=float(ds["dynamic_range"]))
+    if kind == "events":
+        method, win, bins = source.rsplit("_", 2)
+        labels.update(method=method, window=win, bins=int(bins.lstrip("b")))
+    return labels
