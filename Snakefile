@@ -6,7 +6,11 @@ from snakemake.utils import min_version, validate
 min_version("9.0")
 
 
-configfile: "config/config.yaml"
+# The default config applies only when none is given on the command line, so that
+# `--configfile config/experiment.yaml` replaces it instead of being merged into it.
+if not config:
+
+    configfile: "config/config.yaml"
 
 
 validate(config, "workflow/schemas/config.schema.yaml")
@@ -21,6 +25,6 @@ include: "workflow/rules/sfm.smk"
 
 
 rule all:
+    default_target: True
     input:
         all_targets(),
-    default_target: True

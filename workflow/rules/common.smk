@@ -53,7 +53,9 @@ def window_specs():
     if not sizes:
         return [default_window_spec()]
     base = dict(config["events"]["window"])
-    return [window_spec(WindowConfig.from_dict({**base, "num_events": n})) for n in sizes]
+    return [
+        window_spec(WindowConfig.from_dict({**base, "num_events": n})) for n in sizes
+    ]
 
 
 def event_frame_sources():
@@ -88,8 +90,11 @@ def image_sources(name):
 
 def source_images(dataset, source):
     """The rule output that holds the frames of an image source (gt/ and conventional/ hold frames/)."""
-    fixed = {"gt": f"results/{dataset}/gt", "oracle": f"results/{dataset}/gt",
-             "conventional": f"results/{dataset}/conventional"}
+    fixed = {
+        "gt": f"results/{dataset}/gt",
+        "oracle": f"results/{dataset}/gt",
+        "conventional": f"results/{dataset}/conventional",
+    }
     return fixed.get(source, f"results/{dataset}/frames/{source}")
 
 
@@ -105,8 +110,16 @@ def run_labels(dataset, source):
     kind = source if source in ("gt", "conventional", "oracle") else "events"
     labels = {"dataset": dataset, "source": source, "source_kind": kind}
     if "scene" in ds:
-        scene = ds["scene"] if isinstance(ds["scene"], str) else ds["scene"].get("name", "custom")
-        labels.update(scene=scene, speed=float(ds["speed"]), dynamic_range=float(ds["dynamic_range"]))
+        scene = (
+            ds["scene"]
+            if isinstance(ds["scene"], str)
+            else ds["scene"].get("name", "custom")
+        )
+        labels.update(
+            scene=scene,
+            speed=float(ds["speed"]),
+            dynamic_range=float(ds["dynamic_range"]),
+        )
     if kind == "events":
         method, win, bins = source.rsplit("_", 2)
         labels.update(method=method, window=win, bins=int(bins.lstrip("b")))
