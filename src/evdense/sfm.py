@@ -89,6 +89,10 @@ class SfmConfig:
     """Fewer registered frames than this is an error (SfmError)."""
     colmap_log_level: str = "WARNING"
     """Lowest level of COLMAP's own log lines (INFO, WARNING, ERROR); they go to stderr."""
+    on_failure: str = "error"
+    """What the workflow does when too few frames register: error (stop with the diagnostics), or
+    record (write an output folder marked failed, so that a sweep goes on and the failure is
+    scored: no trajectory, no points)."""
     extraction: dict[str, Any] = field(default_factory=dict)
     """Attributes of pycolmap.FeatureExtractionOptions (e.g. {sift: {max_num_features: 4096}})."""
     matching: dict[str, Any] = field(default_factory=dict)
@@ -122,6 +126,7 @@ class SfmConfig:
             ("camera_model", CAMERA_MODELS),
             ("device", DEVICES),
             ("colmap_log_level", COLMAP_LOG_LEVELS),
+            ("on_failure", ("error", "record")),
         ):
             if getattr(self, key) not in allowed:
                 raise ValueError(
@@ -776,6 +781,33 @@ def run_sfm(
         out_dir,
     )
     return stats
+
+
+def write_failed_sfm(out_dir: str | Path, error: SfmError) -> Path:
+    """Write an SfM output folder that records a failure: ``stats.json`` with ``failed: true``,
+    the error message and the diagnostics, and nothing else (no model, no trajectory)."""
+    out_dir = Path(out_dir)
+    diagnostics: dict[str, Any] = {}
+    if error.diagnostics_path is not None and Path(error.diagnostics_path).exists():
+        diagnostics = json.loads(Path(error.diagnostics_path).read_text())
+    tmp = out_dir.with_name(out_dir.name + ".failed.partial")
+    if tmp.exists():
+        shutil.rmtree(tmp)
+    tmp.mkdir(parents=True)
+    stats = {"failed": True, "error": str(error), "num_registered": 0, "registered_fraction": 0.0,
+             "diagnostics": diagnostics}
+    _write_json(tmp / "stats.json", stats)
+    if out_dir.exists():
+        shutil.rmtree(out_dir)
+    tmp.rename(out_dir)
+    log.warning("SfM failed, recorded in %s: %s", out_dir, error)
+    return out_dir
+
+
+def sfm_failed(sfm_dir: str | Path) -> bool:
+    """True when an SfM output folder records a failure (see :func:`write_failed_sfm`)."""
+    p = Path(sfm_dir) / "stats.json"
+    return p.exists() and bool(json.loads(p.read_text()).get("failed", False))
 
 
 def read_sfm_trajectory(sfm_dir: str | Path) -> tuple[np.ndarray, np.ndarray]:

@@ -193,6 +193,17 @@ def evaluate_source(
     }
     gt_mesh = o3d.io.read_triangle_mesh(str(gt_dir / "mesh.ply"))
     diag = bbox_diagonal(gt_mesh)
+    if sfm_stats.get("failed"):
+        # A failed SfM is a result: nothing was reconstructed, every F-score is 0.
+        log.warning("%s: SfM failed (%s); recording an empty reconstruction", sfm_dir, sfm_stats.get("error"))
+        result["failed"] = True
+        result["error"] = sfm_stats.get("error")
+        empty = evaluate_geometry(np.zeros((0, 3)), gt_mesh, conf.relative_thresholds, 1000).to_dict()
+        result["geometry"] = {name: empty for name in ["sparse", "dense", *(meshes or {})]}
+        if frames_dir is not None:
+            result["images"] = evaluate_images(Path(frames_dir), gt_dir, conf)
+        _write_json_atomic(out_path, result)
+        return result
     t_gt, T_gt = read_tum(gt_dir / "trajectory.txt")
     traj_path = sfm_dir / "trajectory.txt"
     if not traj_path.exists():
@@ -252,11 +263,15 @@ def evaluate_source(
     result["geometry"] = geometry
     if frames_dir is not None:
         result["images"] = evaluate_images(Path(frames_dir), gt_dir, conf)
-    out_path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out_path.with_name(out_path.name + ".partial")
-    tmp.write_text(json.dumps(result, indent=2, default=float))
-    os.replace(tmp, out_path)
+    _write_json_atomic(out_path, result)
     return result
+
+
+def _write_json_atomic(path: Path, data: dict) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.name + ".partial")
+    tmp.write_text(json.dumps(data, indent=2, default=float))
+    os.replace(tmp, path)
 
 
 def _f_at(geom: dict, rel: float) -> float | None:
