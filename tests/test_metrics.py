@@ -98,3 +98,14 @@ def test_image_metrics_by_hand():
     assert m["mse"] == pytest.approx(0.01)
     assert m["psnr"] == pytest.approx(20.0)
     assert image_metrics(gt + 0.5, gt + 0.5)["ssim"] == pytest.approx(1.0)
+
+
+def test_compare_to_gt_ignores_tone_curve_but_not_structure(rng):
+    from evdense.evaluate.images import compare_to_gt
+
+    yy, xx = np.mgrid[0:64, 0:64]
+    radiance = 0.05 + np.exp(np.sin(xx / 5.0) + np.cos(yy / 7.0))  # smooth, > 0
+    gamma_frame = (radiance / radiance.max()) ** 0.45 * 255  # another monotonic tone curve
+    assert compare_to_gt(gamma_frame, radiance)["ssim"] > 0.99
+    shuffled = rng.permutation(gamma_frame.ravel()).reshape(gamma_frame.shape)  # same histogram
+    assert compare_to_gt(shuffled, radiance)["ssim"] < 0.2

@@ -21,7 +21,7 @@ import open3d as o3d
 
 from evdense.align import apply_sim3
 from evdense.evaluate.geometry import bbox_diagonal, evaluate_geometry, sample_surface
-from evdense.evaluate.images import image_metrics, normalize_intensity
+from evdense.evaluate.images import compare_to_gt
 from evdense.evaluate.trajectory import evaluate_trajectory
 from evdense.log import get_logger
 from evdense.poses import read_tum
@@ -45,9 +45,8 @@ class EvalConfig:
     """Refine the Sim(3) from camera centres with a scaled ICP onto the GT surface."""
     icp_max_distance: float = 0.02
     """ICP correspondence distance, as a fraction of the GT bounding-box diagonal."""
-    image_low_percentile: float = 1.0
-    """Frames and GT are each rescaled to [0, 1] between these percentiles before MSE/PSNR/SSIM."""
-    image_high_percentile: float = 99.0
+    image_mode: str = "histogram"
+    """How frames meet GT radiance before MSE/PSNR/SSIM (see ``evaluate.images.compare_to_gt``)."""
     max_image_frames: int = 60
     """At most this many frames (evenly spaced) are compared with GT intensity."""
 
@@ -145,10 +144,7 @@ def evaluate_images(frames_dir: Path, gt_dir: Path, conf: EvalConfig) -> dict[st
         img = iio.imread(paths[i]).astype(np.float64)
         if img.ndim == 3:
             img = img[..., :3].mean(-1)
-        lo, hi = conf.image_low_percentile, conf.image_high_percentile
-        per.append(
-            image_metrics(normalize_intensity(img, lo, hi), normalize_intensity(gt[k], lo, hi))
-        )
+        per.append(compare_to_gt(img, gt[k], conf.image_mode))
     out = {k: float(np.mean([m[k] for m in per])) for k in ("mse", "psnr", "ssim")}
     out["num_frames"] = len(per)
     return out
