@@ -22,6 +22,9 @@ include: "workflow/rules/ingest.smk"
 include: "workflow/rules/events.smk"
 include: "workflow/rules/reconstruct.smk"
 include: "workflow/rules/sfm.smk"
+include: "workflow/rules/mvs.smk"
+include: "workflow/rules/evaluate.smk"
+include: "workflow/rules/report.smk"
 
 
 rule all:

@@ -31,11 +31,36 @@ def sim_conf(wildcards=None):
 
 
 def all_targets():
-    """Everything `rule all` asks for, per dataset and per configured sweep point."""
+    """Everything `rule all` asks for: each dataset's products and, when there is ground truth,
+    the metrics table, the figures and the summary."""
     targets = []
     for name in DATASETS:
         targets += dataset_targets(name)
+    if SYNTHETIC:
+        targets += [
+            "results/summary/metrics.csv",
+            "results/summary/figures",
+            "results/summary/summary.md",
+        ]
     return targets
+
+
+def all_metrics_files():
+    """One metrics file per synthetic dataset and image source."""
+    return [
+        f"results/{name}/eval/{src}/metrics.json"
+        for name in SYNTHETIC
+        for src in image_sources(name)
+    ]
+
+
+def mesh_product_names():
+    """Names of the meshes scored per source (none until meshing is configured)."""
+    return []
+
+
+def mesh_products(dataset, source):
+    return []
 
 
 def default_window_spec():

@@ -1,0 +1,86 @@
+# Mesh, refinement and texture (src/evdense/mesh/): the fused cloud of a dense workspace
+# results/{dataset}/mvs/{source}/ -> mesh.ply (poisson | visibility) -> refined.ply -> textured/.
+# The workspace folder (sparse/, images/) is not a declared output of run_mvs; fused.ply stands
+# for it, and the scripts read the cameras and images next to it.
+
+# Wildcard constraints are per rule: {method} means something else in other rules.
+
+
+def mesh_dir(dataset, source, method=None):
+    """results/{dataset}/mesh/{source}/{method} (method defaults to config mesh.method)."""
+    return f"results/{dataset}/mesh/{source}/{method or config['mesh']['method']}"
+
+
+def mesh_product_names():
+    """Names of the mesh products handed to the evaluation, in the order of mesh_products()."""
+    return ["mesh", "refined", "textured"]
+
+
+def mesh_products(dataset, source):
+    """The mesh products of a source with the configured method: raw mesh, refined, textured OBJ."""
+    d = mesh_dir(dataset, source)
+    return [f"{d}/mesh.ply", f"{d}/refined.ply", f"{d}/textured/mesh.obj"]
+
+
+rule mesh_surface:
+    input:
+        cloud="results/{dataset}/mvs/{source}/fused.ply",
+    output:
+        mesh="results/{dataset}/mesh/{source}/{method}/mesh.ply",
+    log:
+        "results/{dataset}/logs/mesh_surface/{source}_{method}.log",
+    benchmark:
+        "results/{dataset}/benchmarks/mesh_surface/{source}_{method}.tsv"
+    wildcard_constraints:
+        source=r"[^/]+",
+        method="poisson|visibility",
+    threads: 2
+    params:
+        conf=lambda w: config["mesh"],
+    script:
+        "../scripts/mesh_surface.py"
+
+
+rule refine_mesh:
+    input:
+        mesh="results/{dataset}/mesh/{source}/{method}/mesh.ply",
+        cloud="results/{dataset}/mvs/{source}/fused.ply",
+    output:
+        mesh="results/{dataset}/mesh/{source}/{method}/refined.ply",
+        stats="results/{dataset}/mesh/{source}/{method}/refined.json",
+    log:
+        "results/{dataset}/logs/refine_mesh/{source}_{method}.log",
+    benchmark:
+        "results/{dataset}/benchmarks/refine_mesh/{source}_{method}.tsv"
+    wildcard_constraints:
+        source=r"[^/]+",
+        method="poisson|visibility",
+    threads: 2
+    params:
+        conf=lambda w: config["mesh"],
+    script:
+        "../scripts/refine_mesh.py"
+
+
+rule texture_mesh:
+    input:
+        mesh="results/{dataset}/mesh/{source}/{method}/refined.ply",
+        cloud="results/{dataset}/mvs/{source}/fused.ply",
+    output:
+        obj="results/{dataset}/mesh/{source}/{method}/textured/mesh.obj",
+        mtl="results/{dataset}/mesh/{source}/{method}/textured/mesh.mtl",
+        texture="results/{dataset}/mesh/{source}/{method}/textured/mesh_texture.png",
+        colored="results/{dataset}/mesh/{source}/{method}/textured/mesh_colored.ply",
+        stats="results/{dataset}/mesh/{source}/{method}/textured/texture.json",
+    log:
+        "results/{dataset}/logs/texture_mesh/{source}_{method}.log",
+    benchmark:
+        "results/{dataset}/benchmarks/texture_mesh/{source}_{method}.tsv"
+    wildcard_constraints:
+        source=r"[^/]+",
+        method="poisson|visibility",
+    threads: 2
+    params:
+        conf=lambda w: config["mesh"],
+    script:
+        "../scripts/texture_mesh.py"
