@@ -23,6 +23,7 @@ include: "workflow/rules/events.smk"
 include: "workflow/rules/reconstruct.smk"
 include: "workflow/rules/sfm.smk"
 include: "workflow/rules/mvs.smk"
+include: "workflow/rules/mesh.smk"
 include: "workflow/rules/evaluate.smk"
 include: "workflow/rules/report.smk"
 

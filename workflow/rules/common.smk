@@ -2,12 +2,28 @@
 # Logic lives in the evdense package; this file only maps config to paths.
 
 import re
+from pathlib import Path
 
 from evdense.config import all_datasets, check_config
 
 check_config(config, base_dir=workflow.basedir)
 
 DATASETS = all_datasets(config)
+
+
+def repo_relative(path):
+    """A relative path that does not exist in the working directory but does in the repository
+    (shipped weights, the anchors beside it) is taken from the repository."""
+    p = Path(path)
+    if p.is_absolute() or p.exists():
+        return str(p)
+    q = Path(workflow.basedir) / p
+    return str(q) if q.exists() else str(p)
+
+
+config["reconstruct"]["checkpoints"] = {
+    k: repo_relative(v) for k, v in config["reconstruct"]["checkpoints"].items()
+}
 SYNTHETIC = [name for name, ds in DATASETS.items() if "scene" in ds]
 RECORDINGS = [name for name, ds in DATASETS.items() if "recording" in ds]
 
@@ -52,15 +68,6 @@ def all_metrics_files():
         for name in SYNTHETIC
         for src in image_sources(name)
     ]
-
-
-def mesh_product_names():
-    """Names of the meshes scored per source (none until meshing is configured)."""
-    return []
-
-
-def mesh_products(dataset, source):
-    return []
 
 
 def default_window_spec():

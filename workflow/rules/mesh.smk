@@ -71,6 +71,7 @@ rule texture_mesh:
         mtl="results/{dataset}/mesh/{source}/{method}/textured/mesh.mtl",
         texture="results/{dataset}/mesh/{source}/{method}/textured/mesh_texture.png",
         colored="results/{dataset}/mesh/{source}/{method}/textured/mesh_colored.ply",
+        glb="results/{dataset}/mesh/{source}/{method}/textured/mesh.glb",
         stats="results/{dataset}/mesh/{source}/{method}/textured/texture.json",
     log:
         "results/{dataset}/logs/texture_mesh/{source}_{method}.log",

@@ -25,7 +25,7 @@ def recon_inputs(wildcards):
     if conf.method in BASELINES:
         inputs["events"] = f"results/{d}/events/events.h5"
         if conf.method == "highpass" and conf.use_conventional_frames:
-            inputs["reference"] = f"results/{d}/conventional/frames"
+            inputs["conventional"] = f"results/{d}/conventional"
     else:
         inputs["weights"] = conf.checkpoint
     return inputs

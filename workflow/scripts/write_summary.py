@@ -10,4 +10,6 @@ from evdense.log import setup_logging
 
 setup_logging(snakemake.log[0])
 write_summary(pd.read_csv(snakemake.input.csv), snakemake.output.md)
-Path(snakemake.output.config).write_text(yaml.safe_dump(dict(snakemake.params.config), sort_keys=False))
+Path(snakemake.output.config).write_text(
+    yaml.safe_dump(dict(snakemake.params.config), sort_keys=False)
+)

@@ -20,10 +20,14 @@ def log_reference(radiance: np.ndarray, low_pct: float = 0.1, high_pct: float = 
 
     The log keeps dark regions of HDR scenes visible, as in the GT frames PNGs.
     """
-    return normalize_intensity(np.log(np.maximum(np.asarray(radiance, np.float64), 1e-6)), low_pct, high_pct)
+    return normalize_intensity(
+        np.log(np.maximum(np.asarray(radiance, np.float64), 1e-6)), low_pct, high_pct
+    )
 
 
-def compare_to_gt(pred: np.ndarray, gt_radiance: np.ndarray, mode: str = "histogram") -> dict[str, float]:
+def compare_to_gt(
+    pred: np.ndarray, gt_radiance: np.ndarray, mode: str = "histogram"
+) -> dict[str, float]:
     """MSE, PSNR and SSIM of a frame (any tone curve) against GT radiance.
 
     Frames of different sources have different, arbitrary tone curves (a network's output, a linear
@@ -38,7 +42,9 @@ def compare_to_gt(pred: np.ndarray, gt_radiance: np.ndarray, mode: str = "histog
         from skimage.exposure import match_histograms
 
         ref = log_reference(gt_radiance)
-        return image_metrics(np.clip(match_histograms(np.asarray(pred, np.float64), ref), 0, 1), ref)
+        return image_metrics(
+            np.clip(match_histograms(np.asarray(pred, np.float64), ref), 0, 1), ref
+        )
     if mode == "percentile":
         return image_metrics(normalize_intensity(pred), normalize_intensity(gt_radiance))
     raise ValueError(f"unknown image comparison mode {mode!r} (histogram, percentile)")

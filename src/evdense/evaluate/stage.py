@@ -49,6 +49,9 @@ class EvalConfig:
     """How frames meet GT radiance before MSE/PSNR/SSIM (see ``evaluate.images.compare_to_gt``)."""
     max_image_frames: int = 60
     """At most this many frames (evenly spaced) are compared with GT intensity."""
+    heldout_views: int = 10
+    """Renders of the textured mesh from this many held-out GT cameras (midway between GT frame
+    times, which no conventional or GT frame uses) are compared with GT images."""
 
     @classmethod
     def from_dict(cls, d: dict[str, Any] | None) -> EvalConfig:
@@ -191,10 +194,16 @@ def evaluate_source(
     diag = bbox_diagonal(gt_mesh)
     if sfm_stats.get("failed"):
         # A failed SfM is a result: nothing was reconstructed, every F-score is 0.
-        log.warning("%s: SfM failed (%s); recording an empty reconstruction", sfm_dir, sfm_stats.get("error"))
+        log.warning(
+            "%s: SfM failed (%s); recording an empty reconstruction",
+            sfm_dir,
+            sfm_stats.get("error"),
+        )
         result["failed"] = True
         result["error"] = sfm_stats.get("error")
-        empty = evaluate_geometry(np.zeros((0, 3)), gt_mesh, conf.relative_thresholds, 1000).to_dict()
+        empty = evaluate_geometry(
+            np.zeros((0, 3)), gt_mesh, conf.relative_thresholds, 1000
+        ).to_dict()
         result["geometry"] = {name: empty for name in ["sparse", "dense", *(meshes or {})]}
         if frames_dir is not None:
             result["images"] = evaluate_images(Path(frames_dir), gt_dir, conf)
@@ -216,7 +225,7 @@ def evaluate_source(
     if dense_cloud is not None and Path(dense_cloud).exists():
         products["dense"] = _read_cloud(Path(dense_cloud))
     for name, p in (meshes or {}).items():
-        if Path(p).exists():
+        if name != "textured" and Path(p).exists():  # the textured mesh is scored by its renders
             products[name] = _read_mesh(Path(p))
     aligned: dict[str, Any] = {}
     for name, obj in products.items():
@@ -239,6 +248,10 @@ def evaluate_source(
         "icp": H.tolist(),
     }
 
+    if "textured" in (meshes or {}) and Path(meshes["textured"]).exists():
+        result["textured_renders"] = evaluate_textured(
+            Path(meshes["textured"]), (s, R, t), H, gt_dir, conf
+        )
     geometry = {}
     for name, obj in aligned.items():
         if isinstance(obj, np.ndarray):
@@ -268,6 +281,70 @@ def _write_json_atomic(path: Path, data: dict) -> None:
     tmp = path.with_name(path.name + ".partial")
     tmp.write_text(json.dumps(data, indent=2, default=float))
     os.replace(tmp, path)
+
+
+def evaluate_textured(
+    obj_path: Path,
+    sim3: tuple[float, np.ndarray, np.ndarray],
+    H: np.ndarray,
+    gt_dir: Path,
+    conf: EvalConfig,
+) -> dict[str, Any]:
+    """PSNR and SSIM of the textured mesh rendered from held-out GT cameras against GT images.
+
+    The mesh is moved into the GT frame (Sim(3) then ICP); GT cameras sit midway between the GT
+    frame times. Scores are over the pixels the mesh covers, after matching the render's grey
+    levels to the GT log image (as for frames); ``coverage`` is that pixel fraction.
+    """
+    from skimage.exposure import match_histograms
+
+    from evdense.camera import load_camera
+    from evdense.evaluate.images import log_reference
+    from evdense.mesh.render import render_textured
+    from evdense.mesh.texture import read_textured_mesh
+    from evdense.sim.groundtruth import render_gt_intensity
+
+    tm = read_textured_mesh(obj_path)
+    s, R, t = sim3
+    v = apply_sim3(s, R, t, tm.vertices)
+    tm.vertices = _apply_h(H, v)
+    cam = load_camera(gt_dir / "intrinsics.yaml")
+    frame_t = np.loadtxt(gt_dir / "frames" / "timestamps.txt", ndmin=2)[:, 1]
+    mids = (frame_t[:-1] + frame_t[1:]) / 2
+    if len(mids) == 0:
+        return {"num_views": 0}
+    mids = mids[
+        np.unique(
+            np.linspace(0, len(mids) - 1, min(conf.heldout_views, len(mids))).round().astype(int)
+        )
+    ]
+    t_gt, T_gt = read_tum(gt_dir / "trajectory.txt")
+    from evdense.align import interpolate_poses
+
+    _, poses = interpolate_poses(mids, t_gt, T_gt)
+    gt = render_gt_intensity(gt_dir, mids)
+    psnr, ssim, cover = [], [], []
+    for k in range(len(mids)):
+        img, mask = render_textured(tm, cam, poses[k])
+        cover.append(float(mask.mean()))
+        if mask.sum() < 100:
+            continue
+        grey = img[..., :3].mean(-1) if img.ndim == 3 else img
+        ref = log_reference(gt[k])
+        matched = np.clip(match_histograms(grey[mask].astype(np.float64), ref[mask]), 0, 1)
+        mse = float(np.mean((matched - ref[mask]) ** 2))
+        psnr.append(10 * np.log10(1 / mse) if mse > 0 else float("inf"))
+        full = ref.copy()
+        full[mask] = matched
+        from skimage.metrics import structural_similarity
+
+        ssim.append(float(structural_similarity(full, ref, data_range=1.0)))
+    return {
+        "num_views": len(mids),
+        "psnr": float(np.mean(psnr)) if psnr else 0.0,
+        "ssim": float(np.mean(ssim)) if ssim else 0.0,
+        "coverage": float(np.mean(cover)),
+    }
 
 
 def _f_at(geom: dict, rel: float) -> float | None:

@@ -39,6 +39,8 @@ def metrics_row(metrics: dict, default_threshold: float | None = None) -> dict:
         row[f"{name}_chamfer"] = g["chamfer"]
     for k, v in (metrics.get("images") or {}).items():
         row[f"image_{k}"] = v
+    for k, v in (metrics.get("textured_renders") or {}).items():
+        row[f"textured_{k}"] = v
     row["threshold_rel"] = rel
     return row
 
@@ -75,6 +77,7 @@ MAIN_COLUMNS = [
     "refined_fscore",
     "image_ssim",
     "image_psnr",
+    "textured_psnr",
 ]
 
 

@@ -1,0 +1,276 @@
+"""Reading the dense workspace (cameras, poses, images, fused cloud) and writing meshes.
+
+The dense workspace is COLMAP's undistorted layout, ``results/{dataset}/mvs/{source}/``:
+``images/`` (undistorted frames), ``sparse/`` (pinhole cameras and registered poses, read with
+``pycolmap.Reconstruction``) and ``fused.ply`` (points with normals and colours), optionally with
+``fused.ply.vis`` (COLMAP's visibility file: ``uint64`` point count, then per point a ``uint32``
+count and that many ``uint32`` image indices; an index is the position of the image in
+``Reconstruction.reg_image_ids()``, the order COLMAP's fusion uses and the order of
+:attr:`Views.names` here).
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import imageio.v3 as iio
+import numpy as np
+import open3d as o3d
+
+from evdense.camera import Camera
+
+
+@dataclass
+class Views:
+    """Calibrated views: one camera, pose and image path per view.
+
+    ``poses`` are camera-to-world ``(N, 4, 4)`` (x right, y down, z forward); images are read on
+    demand with :meth:`image` as float32 in [0, 1], ``(H, W, C)`` with C = 1 or 3.
+    """
+
+    cameras: list[Camera]
+    poses: np.ndarray
+    image_paths: list[Path] = field(default_factory=list)
+    names: list[str] = field(default_factory=list)
+    images: list[np.ndarray] | None = None
+    """Images held in memory (tests, benchmarks); when set, :meth:`image` returns them."""
+
+    def __len__(self) -> int:
+        return len(self.cameras)
+
+    @property
+    def centers(self) -> np.ndarray:
+        """Camera centres in the world frame, ``(N, 3)`` metres."""
+        return self.poses[:, :3, 3].copy()
+
+    def image(self, i: int) -> np.ndarray:
+        """Image ``i`` as float32 ``(H, W, C)`` in [0, 1] (C = 1 for grey, 3 for colour)."""
+        if self.images is not None:
+            img = np.asarray(self.images[i], dtype=np.float32)
+        else:
+            img = read_image(self.image_paths[i])
+        if img.ndim == 2:
+            img = img[..., None]
+        cam = self.cameras[i]
+        if img.shape[:2] != (cam.height, cam.width):
+            raise ValueError(
+                f"{self.names[i] if self.names else i}: image is {img.shape[1]}x{img.shape[0]}, "
+                f"camera says {cam.width}x{cam.height}"
+            )
+        return img
+
+    def subset(self, idx: list[int] | np.ndarray) -> Views:
+        """The views at the given indices (same order)."""
+        idx = [int(i) for i in idx]
+        return Views(
+            cameras=[self.cameras[i] for i in idx],
+            poses=self.poses[idx],
+            image_paths=[self.image_paths[i] for i in idx] if self.image_paths else [],
+            names=[self.names[i] for i in idx] if self.names else [],
+            images=[self.images[i] for i in idx] if self.images is not None else None,
+        )
+
+
+def read_image(path: str | Path) -> np.ndarray:
+    """Read an 8- or 16-bit PNG/JPEG as float32 in [0, 1], ``(H, W)`` or ``(H, W, 3)`` (alpha dropped)."""
+    path = Path(path)
+    if not path.is_file():
+        raise ValueError(f"{path}: image file not found")
+    img = iio.imread(path)
+    scale = 65535.0 if img.dtype == np.uint16 else 255.0
+    img = img.astype(np.float32) / scale
+    if img.ndim == 3 and img.shape[2] == 4:
+        img = img[..., :3]
+    if img.ndim == 3 and img.shape[2] == 1:
+        img = img[..., 0]
+    return img
+
+
+def camera_from_colmap(cam) -> Camera:
+    """Our :class:`Camera` from a ``pycolmap.Camera`` (pinhole family; the dense workspace is undistorted)."""
+    p = np.asarray(cam.params, dtype=np.float64)
+    name = cam.model_name
+    if name == "PINHOLE":
+        return Camera(int(cam.width), int(cam.height), p[0], p[1], p[2], p[3])
+    if name == "SIMPLE_PINHOLE":
+        return Camera(int(cam.width), int(cam.height), p[0], p[0], p[1], p[2])
+    if name == "OPENCV":
+        return Camera(int(cam.width), int(cam.height), p[0], p[1], p[2], p[3], tuple(p[4:8]))
+    if name in ("SIMPLE_RADIAL", "RADIAL"):
+        k2 = p[4] if name == "RADIAL" else 0.0
+        return Camera(int(cam.width), int(cam.height), p[0], p[0], p[1], p[2], (p[3], k2, 0.0, 0.0))
+    raise ValueError(
+        f"camera model {name} is not supported (expected an undistorted PINHOLE camera)"
+    )
+
+
+def read_views(workspace: str | Path) -> Views:
+    """Read the registered views of a dense workspace (``sparse/`` and ``images/``).
+
+    Raises ``ValueError`` naming the folder when ``sparse/`` is missing or holds no registered image.
+    """
+    import pycolmap
+
+    workspace = Path(workspace)
+    sparse = workspace / "sparse"
+    if not (sparse / "images.bin").exists() and not (sparse / "images.txt").exists():
+        raise ValueError(
+            f"{sparse}: no COLMAP model (images.bin / images.txt) in the dense workspace"
+        )
+    rec = pycolmap.Reconstruction(str(sparse))
+    cameras, poses, paths, names = [], [], [], []
+    for image_id in rec.reg_image_ids():
+        im = rec.images[image_id]
+        cameras.append(camera_from_colmap(rec.cameras[im.camera_id]))
+        T_cw = np.eye(4)
+        T_cw[:3, :] = im.cam_from_world().matrix()
+        poses.append(np.linalg.inv(T_cw))
+        paths.append(workspace / "images" / im.name)
+        names.append(im.name)
+    if not cameras:
+        raise ValueError(f"{sparse}: the model has no registered image")
+    return Views(cameras=cameras, poses=np.stack(poses), image_paths=paths, names=names)
+
+
+def write_workspace(workspace: str | Path, views: Views) -> None:
+    """Write ``views`` (with in-memory images) as a dense workspace: ``images/*.png`` and ``sparse/``.
+
+    Used by tests and benchmarks to stand in for the MVS stage's output.
+    """
+    import pycolmap
+
+    workspace = Path(workspace)
+    (workspace / "images").mkdir(parents=True, exist_ok=True)
+    (workspace / "sparse").mkdir(parents=True, exist_ok=True)
+    rec = pycolmap.Reconstruction()
+    for i, cam in enumerate(views.cameras):
+        model, params = cam.colmap_model()
+        rec.add_camera_with_trivial_rig(
+            pycolmap.Camera(
+                camera_id=i + 1, model=model, width=cam.width, height=cam.height, params=params
+            )
+        )
+        name = views.names[i] if views.names else f"{i:06d}.png"
+        img = views.image(i)
+        write_png(workspace / "images" / name, img)
+        T_cw = np.linalg.inv(views.poses[i])
+        im = pycolmap.Image(name=name, camera_id=i + 1, image_id=i + 1)
+        rec.add_image_with_trivial_frame(
+            im, pycolmap.Rigid3d(pycolmap.Rotation3d(T_cw[:3, :3]), T_cw[:3, 3].copy())
+        )
+    rec.write(str(workspace / "sparse"))
+
+
+def write_png(path: str | Path, img: np.ndarray) -> None:
+    """Write a float image in [0, 1] (``(H, W)`` or ``(H, W, C)``, C in 1, 3) as an 8-bit PNG."""
+    img = np.asarray(img)
+    if img.ndim == 3 and img.shape[2] == 1:
+        img = img[..., 0]
+    iio.imwrite(path, np.clip(np.rint(img * 255.0), 0, 255).astype(np.uint8))
+
+
+@dataclass
+class PointCloud:
+    """A point cloud: positions ``(N, 3)`` metres, unit normals and RGB colours in [0, 1] (or None)."""
+
+    points: np.ndarray
+    normals: np.ndarray | None = None
+    colors: np.ndarray | None = None
+    visibility: list[np.ndarray] | None = None
+    """Per point, the indices of the views that saw it (from ``.vis``), or None."""
+
+
+def read_point_cloud(path: str | Path, read_vis: bool = True) -> PointCloud:
+    """Read a PLY cloud (and ``<path>.vis`` when present and ``read_vis``).
+
+    Raises ``ValueError`` naming the file when it is missing, empty, or its ``.vis`` does not match.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise ValueError(f"{path}: point cloud file not found")
+    pcd = o3d.io.read_point_cloud(str(path))
+    pts = np.asarray(pcd.points, dtype=np.float64)
+    if len(pts) == 0:
+        raise ValueError(f"{path}: no points in the cloud")
+    if not np.all(np.isfinite(pts)):
+        raise ValueError(f"{path}: the cloud holds non-finite coordinates")
+    normals = np.asarray(pcd.normals, dtype=np.float64) if pcd.has_normals() else None
+    if normals is not None and np.mean(np.linalg.norm(normals, axis=1) < 1e-6) > 0.5:
+        normals = None  # a placeholder (all zeros), not normals
+    colors = np.asarray(pcd.colors, dtype=np.float64) if pcd.has_colors() else None
+    vis = None
+    vis_path = Path(str(path) + ".vis")
+    if read_vis and vis_path.is_file():
+        vis = read_vis_file(vis_path)
+        if len(vis) != len(pts):
+            raise ValueError(
+                f"{vis_path}: {len(vis)} visibility entries for {len(pts)} points in {path}"
+            )
+    return PointCloud(pts, normals, colors, vis)
+
+
+def read_vis_file(path: str | Path) -> list[np.ndarray]:
+    """Read COLMAP's ``fused.ply.vis``: per point, an array of view indices (uint32)."""
+    path = Path(path)
+    data = np.fromfile(path, dtype=np.uint32)
+    if len(data) < 2:
+        raise ValueError(f"{path}: truncated visibility file")
+    n = int(data[0]) | (int(data[1]) << 32)
+    out: list[np.ndarray] = []
+    pos = 2
+    for _ in range(n):
+        if pos >= len(data):
+            raise ValueError(f"{path}: truncated visibility file ({len(out)} of {n} points)")
+        k = int(data[pos])
+        out.append(data[pos + 1 : pos + 1 + k].astype(np.int64))
+        pos += 1 + k
+    return out
+
+
+def write_vis_file(path: str | Path, visibility: list[np.ndarray]) -> None:
+    """Write COLMAP's visibility file (the inverse of :func:`read_vis_file`)."""
+    parts = [np.array([len(visibility) & 0xFFFFFFFF, len(visibility) >> 32], dtype=np.uint32)]
+    for v in visibility:
+        parts.append(np.array([len(v)], dtype=np.uint32))
+        parts.append(np.asarray(v, dtype=np.uint32))
+    np.concatenate(parts).tofile(path)
+
+
+def read_mesh(path: str | Path) -> o3d.geometry.TriangleMesh:
+    """Read a triangle mesh; raises ``ValueError`` naming the file when missing or without faces."""
+    path = Path(path)
+    if not path.is_file():
+        raise ValueError(f"{path}: mesh file not found")
+    mesh = o3d.io.read_triangle_mesh(str(path))
+    if len(mesh.triangles) == 0:
+        raise ValueError(f"{path}: no triangles in the mesh")
+    return mesh
+
+
+def make_mesh(vertices: np.ndarray, faces: np.ndarray) -> o3d.geometry.TriangleMesh:
+    """An open3d mesh from ``vertices (V, 3)`` and ``faces (F, 3)``."""
+    return o3d.geometry.TriangleMesh(
+        o3d.utility.Vector3dVector(np.asarray(vertices, dtype=np.float64)),
+        o3d.utility.Vector3iVector(np.asarray(faces, dtype=np.int32)),
+    )
+
+
+def write_mesh(path: str | Path, mesh: o3d.geometry.TriangleMesh) -> Path:
+    """Write a mesh atomically (a temporary name in the same folder, then rename); returns the path."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.stem}.partial{path.suffix}")
+    if not o3d.io.write_triangle_mesh(str(tmp), mesh, write_ascii=False):
+        raise ValueError(f"{path}: open3d could not write the mesh")
+    os.replace(tmp, path)
+    return path
+
+
+def replace_dir(tmp: Path, final: Path) -> None:
+    """Move a finished temporary folder onto ``final`` (removing an older one)."""
+    if final.exists():
+        shutil.rmtree(final)
+    os.replace(tmp, final)
