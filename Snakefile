@@ -1,7 +1,9 @@
 # evdense: event-camera recordings to dense, textured 3D meshes, measured against ground truth.
 # Run: snakemake --cores 2 [--configfile config/other.yaml]. See README.md and config/README.md.
 
-from snakemake.utils import min_version, validate
+from snakemake.utils import min_version
+
+from evdense.config import validate_config
 
 min_version("9.0")
 
@@ -13,7 +15,8 @@ if not config:
     configfile: "config/config.yaml"
 
 
-validate(config, "workflow/schemas/config.schema.yaml")
+# Our validator (the schema, defaults filled in) names the offending key as a dotted path.
+validate_config(config, workflow.source_path("workflow/schemas/config.schema.yaml"))
 
 
 include: "workflow/rules/common.smk"
