@@ -1,21 +1,30 @@
-"""Reconstruction speed: milliseconds per frame of each network, per thread count and memory layout.
+"""Reconstruction speed: milliseconds per frame of each network, per thread count.
 
 Usage: PYTHONPATH=src .venv/bin/python benchmarks/bench_recon_speed.py
-           [--size 346x260] [--frames 20] [--threads 1 2] [--nets firenet firenet_plus e2vid]
+           [--size 346x260] [--frames 30] [--threads 2 1] [--nets firenet firenet_plus e2vid]
 
 Times ``NetworkReconstructor.__call__`` (input normalisation, network with the recurrent state
 carried over, clipping, copy back to numpy): the per-frame cost of the stage without file I/O.
+Two variants run frame by frame in alternation, so that both see the same load on a shared
+machine:
+
+- ``optimised``: what the stage runs (channels-last layout; oneDNN convolutions with the
+  activations and residual sums fused; gates of a ConvGRU in one convolution; fewer copies);
+- ``plain``: the same network run as the research code does (NCHW layout, one op per layer).
+
 Input: voxel grids (5 bins) of 25,000 random events per window. FireNet and FireNet+ use the
 published weights when the anchors folder is present (random weights otherwise); E2VID
-(lightweight) has random weights, which does not change its speed. Prints, per configuration,
-the median and the best wall-clock milliseconds per frame over ``--frames`` frames (after 3
-warm-up frames) and the CPU milliseconds per frame (all threads), which depends less on other
-load on the machine.
+(lightweight) has random weights, which does not change its speed. Printed per network and
+thread count: median and best wall-clock milliseconds per frame of each variant, CPU milliseconds
+per frame of the optimised one (all threads), and the median of the per-frame speed-up, which
+the load of other processes changes far less than the times themselves.
+On a machine shared with other jobs, set ``OMP_WAIT_POLICY=PASSIVE`` (the Snakemake rule does).
 """
 
 from __future__ import annotations
 
 import argparse
+import copy
 import os
 import time
 from pathlib import Path
@@ -24,9 +33,10 @@ import numpy as np
 import torch
 
 from evdense.events.voxel import voxel_grid
+from evdense.recon import networks
 from evdense.recon.checkpoints import load_checkpoint
 from evdense.recon.inference import NetworkReconstructor
-from evdense.recon.networks import build_network
+from evdense.recon.networks import ReconstructionNet, build_network
 
 ANCHORS = Path(
     os.environ.get("EVDENSE_ANCHORS", Path(__file__).resolve().parents[2] / "shared" / "anchors")
@@ -45,7 +55,7 @@ def voxels(n: int, width: int, height: int, events: int = 25_000, seed: int = 0)
     return np.stack(out)
 
 
-def network(name: str) -> tuple[torch.nn.Module, str]:
+def network(name: str) -> tuple[ReconstructionNet, str]:
     path = ANCHORS / "weights" / PUBLISHED.get(name, "-")
     if path.is_file():
         return load_checkpoint(path).net, "published"
@@ -53,47 +63,65 @@ def network(name: str) -> tuple[torch.nn.Module, str]:
     return build_network(name).eval(), "random"
 
 
-def time_frames(
-    rec: NetworkReconstructor, grids: np.ndarray, warmup: int = 3
-) -> tuple[float, float, float]:
+def frame(rec: NetworkReconstructor, v: np.ndarray, fused: bool) -> float:
+    networks.FUSED_INFERENCE = fused
+    t0 = time.perf_counter()
+    rec(v)
+    return time.perf_counter() - t0
+
+
+def compare(net: ReconstructionNet, grids: np.ndarray, warmup: int = 3) -> dict[str, float]:
+    opt = NetworkReconstructor(copy.deepcopy(net), channels_last=True)
+    ref = NetworkReconstructor(copy.deepcopy(net), channels_last=False)
     for v in grids[:warmup]:
-        rec(v)
-    wall = []
-    c0 = time.process_time()
+        frame(opt, v, True)
+        frame(ref, v, False)
+    t_opt, t_ref, cpu = [], [], 0.0
     for v in grids[warmup:]:
-        t0 = time.perf_counter()
-        rec(v)
-        wall.append(time.perf_counter() - t0)
-    cpu = (time.process_time() - c0) / len(wall)
-    return 1e3 * float(np.median(wall)), 1e3 * float(np.min(wall)), 1e3 * cpu
+        c0 = time.process_time()
+        t_opt.append(frame(opt, v, True))
+        cpu += time.process_time() - c0
+        t_ref.append(frame(ref, v, False))
+    networks.FUSED_INFERENCE = True
+    a, b = np.array(t_opt), np.array(t_ref)
+    return {
+        "opt_median": 1e3 * np.median(a),
+        "opt_best": 1e3 * a.min(),
+        "opt_cpu": 1e3 * cpu / len(a),
+        "ref_median": 1e3 * np.median(b),
+        "ref_best": 1e3 * b.min(),
+        "speedup": float(np.median(b / a)),
+    }
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--size", default="346x260", help="W x H in pixels")
-    ap.add_argument("--frames", type=int, default=20)
-    ap.add_argument("--threads", type=int, nargs="+", default=[1, 2])
+    ap.add_argument("--frames", type=int, default=30)
+    ap.add_argument("--threads", type=int, nargs="+", default=[2, 1])
     ap.add_argument("--nets", nargs="+", default=["firenet", "firenet_plus", "e2vid"])
-    ap.add_argument("--layouts", nargs="+", default=["channels_last", "contiguous"])
     args = ap.parse_args()
     width, height = (int(v) for v in args.size.lower().split("x"))
     grids = voxels(args.frames + 3, width, height)
+    omp = os.environ.get("OMP_WAIT_POLICY", "default")
     print(
-        f"torch {torch.__version__}, {os.cpu_count()} CPUs, {width}x{height}, {args.frames} frames"
+        f"torch {torch.__version__}, {os.cpu_count()} CPUs, OMP_WAIT_POLICY {omp}, "
+        f"{width}x{height}, {args.frames} frames; times in ms per frame"
     )
     print(
-        f"{'network':<14}{'weights':<11}{'layout':<15}{'threads':>7}{'median ms':>11}{'best ms':>9}{'CPU ms':>8}"
+        f"{'network':<14}{'weights':<11}{'threads':>7}{'opt median':>12}{'opt best':>10}"
+        f"{'opt CPU':>9}{'plain median':>14}{'plain best':>12}{'speed-up':>10}"
     )
     for name in args.nets:
         net, origin = network(name)
-        for layout in args.layouts:
-            for threads in args.threads:
-                torch.set_num_threads(threads)
-                rec = NetworkReconstructor(net, channels_last=layout == "channels_last")
-                med, best, cpu = time_frames(rec, grids)
-                print(
-                    f"{name:<14}{origin:<11}{layout:<15}{threads:>7}{med:>11.1f}{best:>9.1f}{cpu:>8.1f}"
-                )
+        for threads in args.threads:
+            torch.set_num_threads(threads)
+            r = compare(net, grids)
+            print(
+                f"{name:<14}{origin:<11}{threads:>7}{r['opt_median']:>12.1f}{r['opt_best']:>10.1f}"
+                f"{r['opt_cpu']:>9.1f}{r['ref_median']:>14.1f}{r['ref_best']:>12.1f}"
+                f"{r['speedup']:>9.2f}x"
+            )
 
 
 if __name__ == "__main__":

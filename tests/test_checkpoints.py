@@ -141,6 +141,16 @@ def test_plain_state_dict_without_json_is_recognised(tmp_path):
     assert ck.hparams == net.hparams()
 
 
+def test_dataparallel_prefix_and_old_batch_norm_buffers_are_accepted(tmp_path):
+    net = E2VID(base_channels=8, num_encoders=2)
+    sd = {f"module.{k}": v for k, v in net.state_dict().items() if "num_batches_tracked" not in k}
+    torch.save(
+        {"arch": "E2VIDRecurrent", "model": {"num_bins": 5}, "state_dict": sd}, tmp_path / "old.pth"
+    )
+    ck = load_checkpoint(tmp_path / "old.pth")
+    assert ck.arch == "e2vid" and ck.hparams["norm"] == "BN"
+
+
 def test_architecture_comes_from_the_keys_not_the_arch_field(tmp_path):
     # rpg_e2vid-style dict whose 'arch' says FireNet but whose weights are an E2VID
     net = E2VID(base_channels=8, num_encoders=3)

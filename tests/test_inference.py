@@ -14,7 +14,13 @@ from evdense.recon.checkpoints import save_checkpoint
 from evdense.recon.config import ReconstructConfig, resolve_config
 from evdense.recon.inference import NetworkReconstructor, reconstruct_frames
 from evdense.recon.networks import E2VID, FireNet
-from evdense.recon.postprocess import to_uint8
+from evdense.recon.postprocess import (
+    FrameWriter,
+    RobustRescaler,
+    standardize_nonzero,
+    to_uint8,
+    unsharp_mask,
+)
 
 H, W = 40, 48
 
@@ -176,3 +182,48 @@ def test_presets_resolve_against_the_shared_options():
         resolve_config({**section, "presets": {"e": {"method": "e2vid"}}}, "e")
     with pytest.raises(ValueError, match="unknown reconstruct option"):
         ReconstructConfig.from_dict({"method": "firenet", "colour": True})
+
+
+def test_standardize_nonzero_matches_the_published_definition(rng):
+    v = np.zeros((5, 30, 40), np.float32)
+    idx = rng.random(v.shape) < 0.1
+    v[idx] = rng.normal(0.3, 2.0, idx.sum())
+    x = torch.from_numpy(v.copy())
+    nz = x[x != 0]
+    expected = torch.where(x != 0, (x - nz.mean()) / nz.std(), torch.zeros(()))  # rpg_e2vid
+    torch.testing.assert_close(standardize_nonzero(x.clone()), expected, rtol=1e-5, atol=1e-5)
+    zeros = torch.zeros(5, 4, 4)
+    assert torch.equal(standardize_nonzero(zeros.clone()), zeros)
+    same = torch.zeros(5, 4, 4)
+    same[0, 1, 1] = same[2, 3, 0] = 0.7
+    out = standardize_nonzero(same.clone())
+    assert torch.isfinite(out).all() and float(out.abs().max()) < 1e-6
+
+
+def test_robust_rescaler_median_filters_the_bounds():
+    r = RobustRescaler(min_percentile=0, max_percentile=100, window=3, border=0)
+    ramp = np.linspace(0, 1, 100, dtype=np.float32).reshape(10, 10)
+    np.testing.assert_allclose(r(ramp), ramp, atol=1e-6)
+    # bounds so far [0, 1], [0, 2]: the median upper bound is 1.5
+    np.testing.assert_allclose(r(ramp * 2), np.clip(ramp * 2 / 1.5, 0, 1), atol=1e-6)
+    # third frame [0, 4]: median of (1, 2, 4) is 2
+    np.testing.assert_allclose(r(ramp * 4), np.clip(ramp * 2, 0, 1), atol=1e-6)
+    img = np.full((9, 9), 0.5, np.float32)
+    img[4, 4] = 1.0
+    assert unsharp_mask(img, 1.0, 1.0)[4, 4] == 1.0  # clipped
+    assert unsharp_mask(img, 1.0, 1.0)[4, 3] < 0.5  # the halo darkens
+
+
+def test_frame_writer_is_atomic(tmp_path):
+    out = tmp_path / "frames"
+    with pytest.raises(RuntimeError):
+        with FrameWriter(out) as w:
+            w.write(np.zeros((4, 5), np.float32), 0.5)
+            raise RuntimeError("stage failed")
+    assert not out.exists() and not list(tmp_path.iterdir())
+    with FrameWriter(out) as w:
+        w.write(np.full((4, 5), 0.5, np.float32), 0.25)
+        w.write(np.ones((4, 5), np.uint8) * 7, 1.5)
+    assert (out / "timestamps.txt").read_text() == "0 0.250000\n1 1.500000\n"
+    assert np.asarray(Image.open(out / "000000.png"))[0, 0] == 128
+    assert np.asarray(Image.open(out / "000001.png"))[0, 0] == 7

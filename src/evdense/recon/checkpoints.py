@@ -209,6 +209,17 @@ def _plain(obj: Any, depth: int = 0) -> Any:
     return repr(obj)
 
 
+def _tidy_state_dict(sd: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
+    """Undo two harmless differences of older research checkpoints: the ``module.`` prefix of
+    ``nn.DataParallel`` and missing batch-norm ``num_batches_tracked`` counters (torch < 0.4.1)."""
+    if sd and all(k.startswith("module.") for k in sd):
+        sd = {k[len("module.") :]: v for k, v in sd.items()}
+    sd = dict(sd)
+    for k in [k for k in sd if k.endswith(".running_mean")]:
+        sd.setdefault(k[: -len("running_mean")] + "num_batches_tracked", torch.tensor(0))
+    return sd
+
+
 def _build_and_load(
     path: Path, sd: dict[str, torch.Tensor], arch: str, hparams: dict[str, Any]
 ) -> ReconstructionNet:
@@ -268,6 +279,7 @@ def load_checkpoint(path: str | Path) -> LoadedCheckpoint:
         sd, fmt, info = obj, "state_dict", {}
     else:
         raise CheckpointError(f"{path}: no state_dict in the checkpoint (keys: {sorted(obj)[:8]})")
+    sd = _tidy_state_dict(sd)
     try:
         arch, hparams = infer_architecture(sd)
     except CheckpointError as e:

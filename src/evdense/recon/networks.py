@@ -41,11 +41,14 @@ ARCHITECTURES = ("firenet", "firenet_plus", "e2vid")
 # CPU. It saves one pass over the feature map per activation; used only for inference on CPU
 # (it has no autograd), with the plain path as fallback.
 _POINTWISE = getattr(torch.ops.mkldnn, "_convolution_pointwise", None)
+FUSED_INFERENCE = True
+"""Use the fused oneDNN path at CPU inference (set False to run the plain modules, e.g. to compare)."""
 
 
 def _use_fused(x: Tensor) -> bool:
     return (
-        _POINTWISE is not None
+        FUSED_INFERENCE
+        and _POINTWISE is not None
         and not torch.is_grad_enabled()
         and x.device.type == "cpu"
         and x.dtype == torch.float32

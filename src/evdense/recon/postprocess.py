@@ -43,7 +43,7 @@ def standardize_nonzero(voxels: torch.Tensor) -> torch.Tensor:
     sq = float(torch.dot(flat, flat)) if voxels.is_contiguous() else float((flat * flat).sum())
     var = (sq - n * mean * mean) / (n - 1) if n > 1 else 0.0
     voxels.sub_(mean).mul_(mask)
-    if var > 0:
+    if var > 1e-12 * sq / n:  # not all equal (rounding leaves a tiny var otherwise)
         voxels.div_(var**0.5)
     return voxels
 
