@@ -1,0 +1,540 @@
+"""Training data for intensity reconstruction, made by our own simulator and cached in one HDF5.
+
+Every sequence is a small random scene (:mod:`evdense.sim.scene`: textured planes, boxes,
+cylinders, an optional light surface for HDR), rendered by :class:`evdense.sim.render.Renderer`
+along a random bounded 6-DoF motion and turned into events by the ESIM-style simulator
+(:func:`evdense.sim.esim.simulate_event_stream`) with random contrast thresholds, background
+noise and hot pixels. The stream is cut into windows of ``N`` events (``N`` = events per pixel
+times the pixel count, as at inference), each window becomes a B-bin voxel grid
+(:func:`evdense.events.voxel.voxel_grid`, stored raw), and the scene is rendered again at the
+last event of each window to give the target.
+
+Target (what our network predicts): the log radiance at the window's end, mapped to [0, 1] by the
+robust range of the whole sequence, ``clip((log R - q_lo) / (q_hi - q_lo), 0, 1)`` with ``q_lo``,
+``q_hi`` the ``target_percentiles`` of ``log R`` over all the sequence's targets. This is the log
+tone-mapping of our GT frames (:func:`evdense.sim.groundtruth.tonemap_log`): an HDR scene keeps
+detail in its dark and bright parts (what SfM features need), and events, which see only log
+changes, determine it up to an offset and a scale.
+
+Splits (``split`` argument; the held-out one never shares textures, object kinds or motions with
+training):
+
+- ``train`` / ``val``: procedural textures (dead leaves, spectral noise) and the natural images of
+  :data:`TRAIN_IMAGES`, planes and boxes, smooth random motion, some HDR light panels. ``val``
+  differs from ``train`` only by its seed (used to pick the best checkpoint).
+- ``heldout``: checkerboards, noise with variation and the images of :data:`HELDOUT_IMAGES`,
+  cylinders and a floor, and three motion families training never saw: ``fast`` (4x faster),
+  ``shake`` (high-frequency rotation), ``hdr`` (a bright light panel, dynamic range 20-100).
+
+HDF5 layout (``format`` attribute ``evdense-recon-trainset``)::
+
+    /seq_00000/voxels   (W, B, H, Wd) float16  raw voxel grids of the W windows
+    /seq_00000/targets  (W, H, Wd)    float16  targets in [0, 1] (see above)
+    /seq_00000/t_end_us (W,)          int64    last event time of each window
+    /seq_00000/log_radiance_range (2,) float64 q_lo, q_hi
+    /seq_00000/events/{t,x,y,p}, /seq_00000/window_index (W + 1,)   (only when store_events)
+    seq attrs: recipe JSON (scene spec, motion, event camera settings, events per pixel)
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import asdict, dataclass, field, fields
+from pathlib import Path
+from typing import Any
+
+import h5py
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from evdense.events.container import Events
+from evdense.events.voxel import voxel_grid
+from evdense.log import get_logger, progress
+from evdense.sim.esim import EventCameraConfig, simulate_event_stream
+from evdense.sim.render import RenderConfig, Renderer
+from evdense.sim.scene import build_scene
+
+log = get_logger("training")
+
+TRAINSET_FORMAT = "evdense-recon-trainset"
+TRAINSET_VERSION = 1
+SPLITS = ("train", "val", "heldout")
+
+TRAIN_IMAGES = (
+    "astronaut",
+    "brick",
+    "camera",
+    "chelsea",
+    "coffee",
+    "grass",
+    "gravel",
+    "rocket",
+    "hubble_deep_field",
+    "retina",
+)
+"""skimage.data pictures used as textures in training (and val)."""
+HELDOUT_IMAGES = ("moon", "text", "coins", "page", "cell", "immunohistochemistry")
+"""skimage.data pictures used only in the held-out sequences."""
+
+
+@dataclass
+class TrainDataConfig:
+    """Recipe of a simulated training set (config section ``train.data``)."""
+
+    width: int = 128
+    """Camera width, pixels."""
+    height: int = 96
+    """Camera height, pixels."""
+    focal_px: float = 100.0
+    """Focal length, pixels (about 65 degrees horizontal field of view at 128 px)."""
+    bins: int = 5
+    """Temporal bins B of the voxel grids."""
+    windows_per_sequence: int = 32
+    """Windows of N events simulated per sequence."""
+    events_per_pixel: list[float] = field(default_factory=lambda: [0.25, 0.6])
+    """Range [lo, hi] of events per pixel in a window (N = value x width x height), drawn per sequence."""
+    heldout_events_per_pixel: float = 0.3
+    """Events per pixel in the windows of the held-out split (the pipeline's default is ~0.28)."""
+    contrast_range: list[float] = field(default_factory=lambda: [0.1, 0.8])
+    """Range of the mean contrast threshold C (log units), drawn log-uniform per sequence."""
+    contrast_asymmetry: float = 1.25
+    """Largest ratio between the ON and OFF thresholds (each drawn as C * r^(+-1), r in [1, this])."""
+    noise_rate_range: list[float] = field(default_factory=lambda: [0.01, 2.0])
+    """Range of background-activity noise per pixel (Hz), drawn log-uniform."""
+    hot_pixel_fraction_max: float = 1e-3
+    """Largest fraction of hot pixels (drawn uniform in [0, this])."""
+    step_tolerance: float = 0.3
+    """ESIM adaptive step: largest log change between renders as a fraction of C."""
+    target_percentiles: list[float] = field(default_factory=lambda: [0.5, 99.5])
+    """Percentiles of a sequence's log radiance mapped to target 0 and 1."""
+    hdr_fraction: float = 0.25
+    """Fraction of train/val sequences with a light panel (dynamic range 2 to 20)."""
+    max_duration_s: float = 8.0
+    """Give up on a sequence whose windows are not complete after this many seconds of motion."""
+    texture_size: int = 512
+    """Side of the procedural textures, texels."""
+
+
+def _loguniform(rng: np.random.Generator, lo: float, hi: float) -> float:
+    return float(np.exp(rng.uniform(np.log(lo), np.log(hi))))
+
+
+# ---------------------------------------------------------------------------------------------
+# Random scenes
+# ---------------------------------------------------------------------------------------------
+
+
+def _random_texture(rng: np.random.Generator, split: str, size: int) -> dict:
+    low = float(rng.uniform(0.02, 0.15))
+    high = float(rng.uniform(0.55, 1.0))
+    seed = int(rng.integers(0, 2**31))
+    if split == "heldout":
+        kind = rng.choice(["checker", "noise_var", "image", "image"])
+        if kind == "checker":
+            sq = int(rng.choice([4, 8, 16]))
+            return {"type": "checker", "size": 256, "squares": sq, "low": low, "high": high}
+        if kind == "noise_var":
+            return {
+                "type": "noise", "size": size, "beta": float(rng.uniform(2.0, 3.0)),
+                "sharpness": float(rng.uniform(2.0, 4.0)), "variation": 0.5,
+                "low": low, "high": high, "seed": seed,
+            }  # fmt: skip
+        return {"type": "image", "path": "skimage:" + str(rng.choice(HELDOUT_IMAGES)), "low": low,
+                "high": high}  # fmt: skip
+    kind = rng.choice(["dead_leaves", "noise", "image"], p=[0.35, 0.25, 0.4])
+    if kind == "dead_leaves":
+        return {
+            "type": "dead_leaves", "size": size, "rmin": float(rng.uniform(1.5, 4.0)),
+            "rmax": float(rng.uniform(30, 160)), "alpha": float(rng.uniform(2.5, 3.5)),
+            "low": low, "high": high, "seed": seed,
+        }  # fmt: skip
+    if kind == "noise":
+        return {
+            "type": "noise", "size": size, "beta": float(rng.uniform(1.8, 3.2)),
+            "sharpness": float(rng.uniform(0.8, 2.5)), "low": low, "high": high, "seed": seed,
+        }  # fmt: skip
+    return {"type": "image", "path": "skimage:" + str(rng.choice(TRAIN_IMAGES)), "low": low,
+            "high": high}  # fmt: skip
+
+
+def random_scene_spec(rng: np.random.Generator, split: str, hdr: bool, size: int = 512) -> dict:
+    """A random scene spec (see :mod:`evdense.sim.scene`) in front of a camera at the origin.
+
+    The camera looks along +z (world = initial camera frame, metres). A large back plane at 1.5 to
+    4 m fills the view; boxes (train) or boxes, cylinders and a floor (held-out) stand in front of
+    it; with ``hdr`` a light panel (radiance times the dataset's dynamic range) is added.
+    """
+    depth = float(rng.uniform(1.5, 4.0))
+    tilt = Rotation.from_rotvec(rng.normal(0, 0.3, 3) * np.array([1, 1, 0.2]))
+    normal = tilt.apply([0.0, 0.0, -1.0])
+    up = tilt.apply([0.0, -1.0, 0.0])
+    materials: dict[str, Any] = {
+        "back": {"texture": _random_texture(rng, split, size), "tile_m": float(rng.uniform(0.8, 4))}
+    }
+    objects: list[dict] = [
+        {"type": "plane", "center": [0.0, 0.0, depth], "size": [40.0, 40.0],
+         "normal": normal.tolist(), "up": up.tolist(), "material": "back"}
+    ]  # fmt: skip
+    n_obj = int(rng.integers(0, 4))
+    for i in range(n_obj):
+        name = f"obj{i}"
+        materials[name] = {
+            "texture": _random_texture(rng, split, size),
+            "tile_m": float(rng.uniform(0.3, 1.5)),
+        }
+        z = float(rng.uniform(0.9, depth - 0.3))
+        x, y = rng.uniform(-0.45, 0.45, 2) * z
+        s = float(rng.uniform(0.15, 0.5)) * z
+        if split == "heldout" and rng.random() < 0.6:
+            objects.append({"type": "cylinder", "center": [float(x), float(y), z],
+                            "radius": s / 2, "height": s * 1.5,
+                            "rotation_deg": rng.uniform(-90, 90, 3).tolist(), "material": name})  # fmt: skip
+        else:
+            objects.append({"type": "box", "size": (s * rng.uniform(0.5, 1.5, 3)).tolist(),
+                            "center": [float(x), float(y), z],
+                            "rotation_deg": rng.uniform(-60, 60, 3).tolist(), "material": name})  # fmt: skip
+    if split == "heldout" and rng.random() < 0.5:
+        materials["floor"] = {"texture": _random_texture(rng, split, size), "tile_m": 2.0}
+        objects.append({"type": "plane", "center": [0.0, 1.0, depth / 2], "size": [14.0, 14.0],
+                        "normal": [0.0, -1.0, 0.0], "up": [0.0, 0.0, 1.0], "material": "floor"})  # fmt: skip
+    if hdr:
+        materials["light"] = {
+            "texture": {"type": "noise", "size": 128, "beta": 3.0, "low": 0.6, "high": 1.0,
+                        "seed": int(rng.integers(0, 2**31))},
+            "tile_m": 1.0, "radiance": 1.0, "light": True,
+        }  # fmt: skip
+        c = tilt.apply(
+            [float(rng.uniform(-0.4, 0.4)) * depth, float(rng.uniform(-0.3, 0.3)) * depth, 0]
+        )
+        w = float(rng.uniform(0.2, 0.5)) * depth
+        objects.append({"type": "plane", "center": (c + [0, 0, depth - 0.02]).tolist(),
+                        "size": [w, w * float(rng.uniform(0.5, 1.5))], "normal": normal.tolist(),
+                        "up": up.tolist(), "material": "light"})  # fmt: skip
+    return {
+        "name": "train_scene",
+        "duration": 1.0,
+        "shading": {"direction": rng.normal(0, 1, 3).tolist(), "ambient": float(rng.uniform(0.3, 0.8))},
+        "materials": materials,
+        "objects": objects,
+        # unused (we pass our own poses), but a scene needs one
+        "trajectory": {"type": "spline", "key_poses": [
+            {"position": [0, 0, 0], "look_at": [0, 0, 1]},
+            {"position": [0.1, 0, 0], "look_at": [0.1, 0, 1]}]},
+    }  # fmt: skip
+
+
+# ---------------------------------------------------------------------------------------------
+# Random bounded 6-DoF motion
+# ---------------------------------------------------------------------------------------------
+
+
+@dataclass
+class Motion:
+    """Bounded smooth 6-DoF motion: each rotation-vector and position component is a sum of sinusoids."""
+
+    rot_amp: np.ndarray
+    """(K, 3) amplitudes of the rotation vector, radians."""
+    pos_amp: np.ndarray
+    """(K, 3) amplitudes of the position, metres."""
+    freq: np.ndarray
+    """(K, 6) frequencies, Hz."""
+    phase: np.ndarray
+    """(K, 6) phases, radians."""
+
+    def pose(self, t: float) -> np.ndarray:
+        """Camera-to-world pose ``(4, 4)`` at time ``t`` (seconds)."""
+        s = np.sin(2 * np.pi * self.freq * t + self.phase) - np.sin(self.phase)  # 0 at t = 0
+        rv = (self.rot_amp * s[:, :3]).sum(0)
+        T = np.eye(4)
+        T[:3, :3] = Rotation.from_rotvec(rv).as_matrix()
+        T[:3, 3] = (self.pos_amp * s[:, 3:]).sum(0)
+        return T
+
+    def to_dict(self) -> dict[str, Any]:
+        return {k: np.asarray(v).tolist() for k, v in asdict(self).items()}
+
+
+def random_motion(rng: np.random.Generator, kind: str) -> Motion:
+    """Random motion of a family: ``smooth`` (train/val), ``fast`` (4x faster), ``shake`` (5-12 Hz rotation)."""
+    k = 3
+    rot_amp = rng.normal(0, 1, (k, 3)) * np.array([0.08, 0.08, 0.05])
+    pos_amp = rng.normal(0, 1, (k, 3)) * np.array([0.15, 0.1, 0.15])
+    freq = rng.uniform(0.2, 1.5, (k, 6))
+    if kind == "fast":
+        freq *= 4.0
+    elif kind == "shake":
+        freq[:, :3] = rng.uniform(5.0, 12.0, (k, 3))
+        rot_amp *= 0.25
+        pos_amp *= 0.2
+    elif kind != "smooth":
+        raise ValueError(f"unknown motion kind {kind!r} (smooth, fast, shake)")
+    phase = rng.uniform(0, 2 * np.pi, (k, 6))
+    return Motion(rot_amp, pos_amp, freq, phase)
+
+
+# ---------------------------------------------------------------------------------------------
+# One sequence
+# ---------------------------------------------------------------------------------------------
+
+
+class _Enough(Exception):
+    """Raised by the event sink to stop the simulation once enough events were made."""
+
+
+@dataclass
+class Sequence:
+    """One simulated sequence: windows of events, their raw voxel grids and targets."""
+
+    voxels: np.ndarray
+    """(W, B, H, Wd) float32 raw voxel grids."""
+    targets: np.ndarray
+    """(W, H, Wd) float32 targets in [0, 1]."""
+    log_radiance: np.ndarray
+    """(W, H, Wd) float32 log radiance at the window ends (the GT before normalisation)."""
+    t_end_us: np.ndarray
+    """(W,) int64 time of the last event of each window, microseconds."""
+    window_index: np.ndarray
+    """(W + 1,) int64 event index where each window starts (last entry: end of the last)."""
+    events: Events
+    """All events of the windows."""
+    log_range: tuple[float, float]
+    """q_lo, q_hi: log radiance mapped to target 0 and 1."""
+    recipe: dict[str, Any]
+    """Scene spec, motion, event camera settings, events per pixel, kind."""
+
+
+def _sequence_recipe(
+    conf: TrainDataConfig, split: str, rng: np.random.Generator
+) -> tuple[dict, Motion, EventCameraConfig, int, dict[str, Any]]:
+    if split == "heldout":
+        kind = str(rng.choice(["fast", "shake", "hdr", "smooth"]))
+    else:
+        kind = "hdr" if rng.random() < conf.hdr_fraction else "smooth"
+    hdr = kind == "hdr"
+    spec = random_scene_spec(rng, split, hdr, conf.texture_size)
+    if split == "heldout":
+        dyn = _loguniform(rng, 20.0, 100.0) if hdr else 1.0
+    else:
+        dyn = _loguniform(rng, 2.0, 20.0) if hdr else 1.0
+    motion = random_motion(rng, "smooth" if kind == "hdr" else kind)
+    c = _loguniform(rng, *conf.contrast_range)
+    r = float(rng.uniform(1.0, conf.contrast_asymmetry)) ** float(rng.choice([-1, 1]))
+    cam = EventCameraConfig(
+        contrast_pos=c * r,
+        contrast_neg=c / r,
+        contrast_sigma=0.1 * c,
+        contrast_min=0.05,
+        noise_rate_hz=_loguniform(rng, *conf.noise_rate_range),
+        hot_pixel_fraction=float(rng.uniform(0, conf.hot_pixel_fraction_max)),
+        hot_pixel_rate_hz=float(rng.uniform(10, 100)),
+        step_tolerance=conf.step_tolerance,
+        max_step_us=2000.0,
+        chunk_events=1024,
+    )
+    if split == "heldout":
+        epp = conf.heldout_events_per_pixel
+    else:
+        epp = float(rng.uniform(*conf.events_per_pixel))
+    n = max(1, int(round(epp * conf.width * conf.height)))
+    info = {"kind": kind, "dynamic_range": dyn, "events_per_pixel": epp, "events_per_window": n}
+    return spec, motion, cam, n, info
+
+
+def simulate_sequence(conf: TrainDataConfig, split: str, seed: int) -> Sequence | None:
+    """Simulate one random sequence of ``split`` from ``seed``; None when it makes too few events.
+
+    Returns ``conf.windows_per_sequence`` windows of N events, their raw voxel grids ``(B, H, W)``
+    and targets ``(H, W)`` (see the module docstring).
+    """
+    if split not in SPLITS:
+        raise ValueError(f"unknown split {split!r} ({', '.join(SPLITS)})")
+    rng = np.random.default_rng(seed)
+    spec, motion, cam, n, info = _sequence_recipe(conf, split, rng)
+    render = RenderConfig(
+        camera={"width": conf.width, "height": conf.height, "fx": conf.focal_px,
+                "fy": conf.focal_px, "cx": conf.width / 2, "cy": conf.height / 2}
+    )  # fmt: skip
+    dataset = {"speed": 1.0, "dynamic_range": info["dynamic_range"], "duration": 1.0, "seed": seed}
+    scene = build_scene(spec, dataset, render, None)
+    renderer = Renderer(scene, supersample=1)
+
+    def radiance_at(t: float) -> np.ndarray:
+        return renderer.radiance(motion.pose(t))
+
+    need = n * conf.windows_per_sequence
+    parts: list[Events] = []
+    count = 0
+
+    def sink(ev: Events) -> None:
+        nonlocal count
+        parts.append(ev)
+        count += len(ev)
+        if count >= need:
+            raise _Enough
+
+    try:
+        simulate_event_stream(radiance_at, 0.0, conf.max_duration_s, cam, rng, sink)
+    except _Enough:
+        pass
+    if count < need:
+        log.debug("sequence %d (%s): only %d of %d events", seed, split, count, need)
+        return None
+    ev = Events.concatenate(parts)[:need]
+    idx = np.arange(0, need + 1, n, dtype=np.int64)
+    nw = conf.windows_per_sequence
+    h, w = conf.height, conf.width
+    voxels = np.zeros((nw, conf.bins, h, w), np.float32)
+    logr = np.zeros((nw, h, w), np.float32)
+    t_end = np.zeros(nw, np.int64)
+    for k in range(nw):
+        a, b = idx[k], idx[k + 1]
+        voxel_grid(ev.t[a:b], ev.x[a:b], ev.y[a:b], ev.p[a:b], conf.bins, h, w, out=voxels[k])
+        t_end[k] = ev.t[b - 1]
+        logr[k] = np.log(radiance_at(t_end[k] * 1e-6) + cam.log_eps)
+    lo, hi = np.percentile(logr, conf.target_percentiles)
+    hi = max(hi, lo + 1e-3)
+    targets = np.clip((logr - lo) / (hi - lo), 0.0, 1.0).astype(np.float32)
+    recipe = {
+        "split": split,
+        "seed": seed,
+        **info,
+        "scene": spec,
+        "motion": motion.to_dict(),
+        "event_camera": cam.to_dict(),
+        "duration_s": float(t_end[-1]) * 1e-6,
+    }
+    return Sequence(voxels, targets, logr, t_end, idx, ev, (float(lo), float(hi)), recipe)
+
+
+# ---------------------------------------------------------------------------------------------
+# The cached set
+# ---------------------------------------------------------------------------------------------
+
+
+def _seed(base: int, split: str, i: int) -> int:
+    return (base * 1_000_003 + SPLITS.index(split) * 100_003 + i) % (2**31)
+
+
+def _simulate_job(job: tuple[TrainDataConfig, str, int]) -> Sequence | None:
+    conf, split, seed = job
+    import torch  # noqa: F401  (keep worker threads to one each)
+
+    torch.set_num_threads(1)
+    return simulate_sequence(conf, split, seed)
+
+
+def generate_dataset(
+    out_path: str | Path,
+    conf: TrainDataConfig,
+    splits: dict[str, int],
+    seed: int = 0,
+    store_events: tuple[str, ...] = ("heldout",),
+    workers: int = 1,
+) -> Path:
+    """Simulate ``splits`` (split name -> number of sequences) and write them into one HDF5.
+
+    Sequences are numbered per split (``/train/seq_00000``, ...). Attempt ``i`` of a split is
+    seeded from ``seed``, the split and ``i``; attempts with too few events are skipped, and the
+    first ``count`` good ones are kept in attempt order, so a set is reproducible whatever
+    ``workers`` (processes) is. The events themselves are stored for the splits in
+    ``store_events`` (the baselines need them). Written to ``<out>.partial`` and renamed when
+    complete. Returns ``out_path``.
+    """
+    out_path = Path(out_path)
+    out_path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = out_path.with_name(out_path.name + ".partial")
+    pool = None
+    if workers > 1:
+        import multiprocessing as mp
+
+        pool = mp.get_context("spawn").Pool(workers)
+    try:
+        with h5py.File(tmp, "w") as f:
+            f.attrs["format"] = TRAINSET_FORMAT
+            f.attrs["version"] = TRAINSET_VERSION
+            f.attrs["config"] = json.dumps(asdict(conf))
+            f.attrs["seed"] = int(seed)
+            f.attrs["splits"] = json.dumps(splits)
+            for split, count in splits.items():
+                g = f.create_group(split)
+                max_attempts = 3 * count + 10
+                jobs = ((conf, split, _seed(seed, split, i)) for i in range(max_attempts))
+                results = pool.imap(_simulate_job, jobs) if pool else map(_simulate_job, jobs)
+                made = 0
+                for seq in progress(results, total=count, desc=f"simulate {split}"):
+                    if seq is not None:
+                        _write_sequence(
+                            g.create_group(f"seq_{made:05d}"), seq, split in store_events
+                        )
+                        made += 1
+                    if made == count:
+                        break
+                if made < count:
+                    raise ValueError(
+                        f"{out_path}: only {made} of {count} {split} sequences had enough events "
+                        "(check contrast_range and max_duration_s)"
+                    )
+                if pool:  # drop the look-ahead jobs of this split
+                    pool.terminate()
+                    pool = mp.get_context("spawn").Pool(workers)
+    finally:
+        if pool:
+            pool.terminate()
+    os.replace(tmp, out_path)
+    log.info("wrote %s (%s)", out_path, ", ".join(f"{k}: {v}" for k, v in splits.items()))
+    return out_path
+
+
+def _write_sequence(g: h5py.Group, seq: Sequence, store_events: bool) -> None:
+    opts = {"compression": "gzip", "compression_opts": 1, "shuffle": True}
+    nw = len(seq.targets)
+    g.create_dataset(
+        "voxels", data=seq.voxels.astype(np.float16), chunks=(1, *seq.voxels.shape[1:]), **opts
+    )
+    g.create_dataset(
+        "targets", data=seq.targets.astype(np.float16), chunks=(1, *seq.targets.shape[1:]), **opts
+    )
+    g.create_dataset("log_radiance", data=seq.log_radiance, chunks=(1, *seq.targets.shape[1:]), **opts)  # fmt: skip
+    g.create_dataset("t_end_us", data=seq.t_end_us)
+    g["log_radiance_range"] = np.array(seq.log_range)
+    g.attrs["recipe"] = json.dumps(seq.recipe)
+    g.attrs["num_windows"] = nw
+    if store_events:
+        e = g.create_group("events")
+        for name in ("t", "x", "y", "p"):
+            e.create_dataset(name, data=getattr(seq.events, name), **opts)
+        g["window_index"] = seq.window_index
+
+
+def read_config(path: str | Path) -> TrainDataConfig:
+    """The :class:`TrainDataConfig` a cached set was made with."""
+    with h5py.File(path, "r") as f:
+        _check_format(f, path)
+        d = json.loads(f.attrs["config"])
+    return TrainDataConfig(
+        **{k: v for k, v in d.items() if k in {x.name for x in fields(TrainDataConfig)}}
+    )
+
+
+def _check_format(f: h5py.File, path: str | Path) -> None:
+    if f.attrs.get("format") != TRAINSET_FORMAT:
+        raise ValueError(f"{path}: not an evdense training set (format {f.attrs.get('format')!r})")
+
+
+def load_split(path: str | Path, split: str) -> tuple[np.ndarray, np.ndarray]:
+    """All voxels ``(S, W, B, H, Wd)`` float16 and targets ``(S, W, H, Wd)`` float16 of one split.
+
+    Raises ``ValueError`` when the file is not a training set or lacks the split.
+    """
+    with h5py.File(path, "r") as f:
+        _check_format(f, path)
+        if split not in f:
+            raise ValueError(f"{path}: no split {split!r} (has {', '.join(f)})")
+        g = f[split]
+        names = sorted(g)
+        if not names:
+            raise ValueError(f"{path}: split {split!r} has no sequences")
+        vox = np.stack([g[n]["voxels"][()] for n in names])
+        tgt = np.stack([g[n]["targets"][()] for n in names])
+    return vox, tgt

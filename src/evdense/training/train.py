@@ -1,0 +1,499 @@
+"""Training loop for our FireNet weights: truncated BPTT on simulated sequences, checkpoints, resume.
+
+One training *step* takes a batch of ``batch_size`` random crops (``crop_size`` pixels square) of
+``sequence_length`` consecutive windows from random training sequences, runs the network from a
+zero state over them in chunks of ``tbptt_length`` windows and makes one optimizer update per
+chunk, the recurrent state detached between chunks (truncated backpropagation through time).
+
+Inputs are the raw voxel grids with FireNet's input normalisation (non-zero entries of each whole
+window standardised to mean 0, std 1, computed over the full frame before cropping, as at
+inference). Augmentation: horizontal flips and polarity inversion (negated voxels with target
+``1 - target``, exact for our log-domain target).
+
+Every ``checkpoint_every`` steps ``out_dir/checkpoints/step_XXXXXXX.pt`` holds the model, the
+optimizer, the sampling RNG and the best validation result, so a stopped run resumes exactly where
+it was (bit-identical on the same machine and thread count). Every ``val_every`` steps the
+validation split is run at full resolution; when its loss improves, the weights are written in our
+checkpoint format (``.pt`` + ``.json``) to ``weights_path`` with their provenance. Losses go to
+the log and to ``out_dir/history.jsonl``.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import time
+from dataclasses import asdict, dataclass, field, fields
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from evdense.log import get_logger
+from evdense.recon.checkpoints import save_checkpoint
+from evdense.recon.networks import FireNet, detach_states
+from evdense.training.data import TrainDataConfig, load_split, read_config
+from evdense.training.losses import LossWeights, reconstruction_loss, ssim
+
+log = get_logger("training")
+
+CHECKPOINT_FORMAT = "evdense-train-state"
+
+
+@dataclass
+class TrainConfig:
+    """Settings of a training run (config section ``train``)."""
+
+    seed: int = 0
+    """Seed of the data set, the initial weights and the batch sampling."""
+    num_train_sequences: int = 160
+    """Simulated training sequences."""
+    num_val_sequences: int = 8
+    """Simulated validation sequences (training distribution, other seeds; picks the best checkpoint)."""
+    num_heldout_sequences: int = 24
+    """Simulated held-out sequences (unseen textures, objects, motions, HDR) for the quality table."""
+    base_channels: int = 16
+    """FireNet feature channels."""
+    num_residual_blocks: int = 2
+    """FireNet residual blocks (the first is recurrent)."""
+    batch_size: int = 4
+    """Crops per step."""
+    crop_size: int = 64
+    """Side of the square training crops, pixels."""
+    sequence_length: int = 16
+    """Consecutive windows per crop and step (from a zero recurrent state)."""
+    tbptt_length: int = 8
+    """Windows per backpropagation chunk (the state is detached between chunks)."""
+    max_steps: int = 1000
+    """Training steps (batches of sequences); the learning rate follows a cosine to this step."""
+    lr: float = 2e-3
+    """Peak learning rate of Adam."""
+    lr_min_fraction: float = 0.05
+    """Final learning rate as a fraction of ``lr``."""
+    warmup_steps: int = 20
+    """Steps of linear learning-rate warm-up."""
+    grad_clip: float = 1.0
+    """Largest gradient norm (0 = no clipping)."""
+    loss_l1: float = 1.0
+    """Weight of the L1 loss."""
+    loss_ssim: float = 1.0
+    """Weight of the (1 - SSIM) loss."""
+    loss_temporal: float = 0.2
+    """Weight of the temporal-consistency loss."""
+    augment: bool = True
+    """Random horizontal flips and polarity inversions."""
+    checkpoint_every: int = 25
+    """Steps between resumable checkpoints."""
+    keep_checkpoints: int = 2
+    """Resumable checkpoints kept (older ones are deleted)."""
+    val_every: int = 25
+    """Steps between validations (and best-weights saves)."""
+    log_every: int = 5
+    """Steps between loss lines in the log."""
+    threads: int = 2
+    """Torch CPU threads."""
+    time_budget_min: float = 0.0
+    """Stop (after a checkpoint and a validation) when training has run this many minutes (0 = no limit)."""
+    data: TrainDataConfig = field(default_factory=TrainDataConfig)
+    """Recipe of the simulated data (``train.data``)."""
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any] | None) -> TrainConfig:
+        """Build from the ``train`` config section; unknown keys raise ``ValueError``."""
+        d = dict(d or {})
+        data = d.pop("data", None) or {}
+        known = {f.name for f in fields(cls)}
+        bad = sorted(set(d) - known)
+        dknown = {f.name for f in fields(TrainDataConfig)}
+        bad += [f"data.{k}" for k in sorted(set(data) - dknown)]
+        if bad:
+            raise ValueError(f"train: unknown option(s) {', '.join(bad)}")
+        conf = cls(**d, data=TrainDataConfig(**data))
+        if conf.sequence_length % conf.tbptt_length:
+            raise ValueError("train.sequence_length must be a multiple of train.tbptt_length")
+        if conf.sequence_length > conf.data.windows_per_sequence:
+            raise ValueError("train.sequence_length exceeds train.data.windows_per_sequence")
+        if conf.crop_size > min(conf.data.width, conf.data.height):
+            raise ValueError("train.crop_size exceeds the simulated camera size")
+        return conf
+
+    def splits(self) -> dict[str, int]:
+        """Split name -> number of sequences to simulate."""
+        return {
+            "train": self.num_train_sequences,
+            "val": self.num_val_sequences,
+            "heldout": self.num_heldout_sequences,
+        }
+
+    def loss_weights(self) -> LossWeights:
+        return LossWeights(self.loss_l1, self.loss_ssim, self.loss_temporal)
+
+
+@dataclass
+class TrainResult:
+    """What a run produced."""
+
+    weights_path: Path
+    """Best-validation weights (our format; the JSON beside it)."""
+    step: int
+    """Last step trained."""
+    best_step: int
+    """Step of the best validation loss."""
+    best_val: dict[str, float]
+    """Validation metrics at the best step."""
+    train_seconds: float
+    """Wall time spent training (all sessions of a resumed run), seconds."""
+
+
+# ---------------------------------------------------------------------------------------------
+# Data in memory
+# ---------------------------------------------------------------------------------------------
+
+
+def normalize_windows(voxels: np.ndarray) -> torch.Tensor:
+    """FireNet's input normalisation per window, ``(..., B, H, W)`` -> float16 tensor, same shape.
+
+    The non-zero entries of each window are standardised to mean 0 and (unbiased) std 1, zeros
+    stay zero (as :func:`evdense.recon.postprocess.standardize_nonzero` does at inference).
+    """
+    shape = voxels.shape
+    flat = voxels.reshape(-1, int(np.prod(shape[-3:])))
+    out = torch.empty(flat.shape, dtype=torch.float16)
+    for i in range(0, len(flat), 64):
+        x = torch.from_numpy(np.asarray(flat[i : i + 64], dtype=np.float32))
+        mask = x != 0
+        n = mask.sum(1, keepdim=True).clamp_min(1)
+        mean = x.sum(1, keepdim=True) / n
+        var = ((x - mean) ** 2 * mask).sum(1, keepdim=True) / (n - 1).clamp_min(1)
+        std = var.sqrt()
+        std = torch.where(std > 0, std, torch.ones_like(std))
+        out[i : i + 64] = torch.where(mask, (x - mean) / std, torch.zeros_like(x)).half()
+    return out.reshape(shape)
+
+
+class SequenceSampler:
+    """Random crops of consecutive windows from a split held in memory (float16)."""
+
+    def __init__(self, voxels: np.ndarray, targets: np.ndarray, conf: TrainConfig) -> None:
+        self.voxels = normalize_windows(voxels)  # (S, W, B, H, Wd)
+        self.targets = torch.from_numpy(np.asarray(targets, dtype=np.float16))  # (S, W, H, Wd)
+        self.conf = conf
+
+    def batch(self, rng: np.random.Generator) -> tuple[torch.Tensor, torch.Tensor]:
+        """Voxels ``(L, N, B, c, c)`` and targets ``(L, N, 1, c, c)`` float32 for one step."""
+        c, L = self.conf.crop_size, self.conf.sequence_length
+        s_all, w_all, _, h, w = self.voxels.shape
+        xs, ys = [], []
+        for _ in range(self.conf.batch_size):
+            s = int(rng.integers(s_all))
+            k = int(rng.integers(0, w_all - L + 1))
+            y0 = int(rng.integers(0, h - c + 1))
+            x0 = int(rng.integers(0, w - c + 1))
+            flip, invert = rng.random(2) < 0.5
+            v = self.voxels[s, k : k + L, :, y0 : y0 + c, x0 : x0 + c].float()
+            t = self.targets[s, k : k + L, y0 : y0 + c, x0 : x0 + c].float()
+            if self.conf.augment and flip:
+                v, t = v.flip(-1), t.flip(-1)
+            if self.conf.augment and invert:
+                v, t = -v, 1.0 - t
+            xs.append(v)
+            ys.append(t[:, None])
+        return torch.stack(xs, 1).contiguous(), torch.stack(ys, 1).contiguous()
+
+
+# ---------------------------------------------------------------------------------------------
+# Validation
+# ---------------------------------------------------------------------------------------------
+
+
+@torch.no_grad()
+def validate(
+    net: FireNet, voxels: torch.Tensor, targets: torch.Tensor, weights: LossWeights
+) -> dict[str, float]:
+    """Run ``net`` over whole validation sequences from a zero state; mean loss terms and SSIM.
+
+    ``voxels``: normalised ``(S, W, B, H, Wd)``; ``targets``: ``(S, W, H, Wd)``. The loss is the
+    training loss over chunks of all windows; ``ssim_clipped`` is the SSIM of the clipped output.
+    """
+    net.eval()
+    states = None
+    preds = []
+    for k in range(voxels.shape[1]):
+        img, states = net(voxels[:, k].float(), states)
+        preds.append(img)
+    net.train()
+    pred = torch.stack(preds)  # (W, S, 1, H, Wd)
+    tgt = targets.float().transpose(0, 1)[:, :, None]
+    _, terms = reconstruction_loss(pred, tgt, weights)
+    w, s = pred.shape[:2]
+    terms["ssim_clipped"] = float(
+        ssim(
+            pred.clamp(0, 1).reshape(w * s, 1, *pred.shape[3:]),
+            tgt.reshape(w * s, 1, *tgt.shape[3:]),
+        )
+    )
+    return terms
+
+
+# ---------------------------------------------------------------------------------------------
+# Checkpoints
+# ---------------------------------------------------------------------------------------------
+
+
+def _checkpoint_dir(out_dir: Path) -> Path:
+    return out_dir / "checkpoints"
+
+
+def latest_checkpoint(out_dir: str | Path) -> Path | None:
+    """The resumable checkpoint with the highest step in ``out_dir/checkpoints``, or None."""
+    d = _checkpoint_dir(Path(out_dir))
+    found = sorted(d.glob("step_*.pt")) if d.is_dir() else []
+    return found[-1] if found else None
+
+
+def _save_state(out_dir: Path, state: dict[str, Any], keep: int) -> Path:
+    d = _checkpoint_dir(out_dir)
+    d.mkdir(parents=True, exist_ok=True)
+    path = d / f"step_{state['step']:07d}.pt"
+    tmp = path.with_name(path.name + ".partial")
+    torch.save(state, tmp)
+    os.replace(tmp, path)
+    for old in sorted(d.glob("step_*.pt"))[:-keep]:
+        old.unlink()
+    return path
+
+
+def _load_state(path: Path) -> dict[str, Any]:
+    state = torch.load(path, map_location="cpu", weights_only=True)
+    if not isinstance(state, dict) or state.get("format") != CHECKPOINT_FORMAT:
+        raise ValueError(f"{path}: not an evdense training checkpoint")
+    return state
+
+
+def _lr_at(step: int, conf: TrainConfig, spent_s: float = 0.0) -> float:
+    """Linear warm-up, then a cosine from ``lr`` to ``lr * lr_min_fraction``.
+
+    The cosine's progress is the fraction of ``max_steps`` done, or, with a time budget, the
+    fraction of the budget spent when that is larger (so a run cut by the budget still ends at a
+    low learning rate; such a run is not bit-reproducible, as it depends on the machine's speed).
+    """
+    if step < conf.warmup_steps:
+        return conf.lr * (step + 1) / conf.warmup_steps
+    span = max(1, conf.max_steps - conf.warmup_steps)
+    u = (step - conf.warmup_steps) / span
+    if conf.time_budget_min > 0:
+        u = max(u, spent_s / (conf.time_budget_min * 60))
+    u = min(1.0, u)
+    lo = conf.lr * conf.lr_min_fraction
+    return lo + 0.5 * (conf.lr - lo) * (1 + math.cos(math.pi * u))
+
+
+# ---------------------------------------------------------------------------------------------
+# The run
+# ---------------------------------------------------------------------------------------------
+
+
+def build_model(conf: TrainConfig) -> FireNet:
+    """A FireNet with the run's hyper-parameters, initialised from ``conf.seed``."""
+    torch.manual_seed(conf.seed)
+    return FireNet(
+        num_bins=conf.data.bins,
+        base_channels=conf.base_channels,
+        num_residual_blocks=conf.num_residual_blocks,
+    )
+
+
+def train_model(
+    conf: TrainConfig,
+    data_path: str | Path,
+    out_dir: str | Path,
+    weights_path: str | Path,
+    resume: bool = True,
+    max_steps: int | None = None,
+) -> TrainResult:
+    """Train FireNet on the simulated set ``data_path`` (see :func:`~evdense.training.data.generate_dataset`).
+
+    Resumes from the latest checkpoint in ``out_dir/checkpoints`` when ``resume``; ``max_steps``
+    stops this session early (the schedule still follows ``conf.max_steps``), for tests and for
+    splitting a run. Best-validation weights go to ``weights_path`` (``.pt`` + ``.json``).
+    """
+    out_dir, weights_path = Path(out_dir), Path(weights_path)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    torch.set_num_threads(conf.threads)
+    data_conf = read_config(data_path)
+    if (data_conf.bins, data_conf.width, data_conf.height) != (
+        conf.data.bins, conf.data.width, conf.data.height,
+    ):  # fmt: skip
+        raise ValueError(f"{data_path}: made with another camera or bin count than train.data")
+    weights = conf.loss_weights()
+    train = SequenceSampler(*load_split(data_path, "train"), conf)
+    v_vox, v_tgt = load_split(data_path, "val")
+    v_vox = normalize_windows(v_vox)
+    v_tgt = torch.from_numpy(v_tgt)
+
+    cl = torch.channels_last  # faster convolutions on CPU (oneDNN)
+    net = build_model(conf).to(memory_format=cl)
+    net.train()
+    opt = torch.optim.Adam(net.parameters(), lr=conf.lr)
+    rng = np.random.default_rng(conf.seed)
+    step, best_loss, best_step, best_val, spent = 0, math.inf, -1, {}, 0.0
+    history = out_dir / "history.jsonl"
+    ckpt = latest_checkpoint(out_dir) if resume else None
+    if ckpt is not None:
+        state = _load_state(ckpt)
+        net.load_state_dict(state["model"])
+        opt.load_state_dict(state["optimizer"])
+        rng.bit_generator.state = json.loads(state["rng"])
+        step, best_loss, best_step = state["step"], state["best_loss"], state["best_step"]
+        best_val, spent = json.loads(state["best_val"]), state["train_seconds"]
+        log.info("resumed from %s (step %d)", ckpt, step)
+        if history.is_file():  # drop lines written after that checkpoint
+            lines = [ln for ln in history.read_text().splitlines() if ln.strip()]
+            kept = [ln for ln in lines if json.loads(ln)["step"] <= step]
+            history.write_text("".join(ln + "\n" for ln in kept))
+    elif history.is_file():
+        history.unlink()
+
+    provenance_base = {
+        "trained_by": "evdense.training.train.train_model",
+        "train_config": asdict(conf),
+        "data_file": str(data_path),
+        "data_recipe": asdict(data_conf),
+        "seed": conf.seed,
+        "target": "log radiance at the window end, per-sequence robust range "
+        f"(percentiles {data_conf.target_percentiles}) mapped to [0, 1]",
+        "input_normalization": "nonzero (non-zero voxels of each window to mean 0, std 1)",
+    }
+
+    def save_state() -> None:
+        _save_state(
+            out_dir,
+            {
+                "format": CHECKPOINT_FORMAT,
+                "step": step,
+                "model": net.state_dict(),
+                "optimizer": opt.state_dict(),
+                "rng": json.dumps(rng.bit_generator.state),
+                "best_loss": best_loss,
+                "best_step": best_step,
+                "best_val": json.dumps(best_val),
+                "train_seconds": spent,
+            },
+            conf.keep_checkpoints,
+        )
+
+    def write_history(rec: dict[str, Any]) -> None:
+        with history.open("a") as f:
+            f.write(json.dumps(rec) + "\n")
+
+    stop = conf.max_steps if max_steps is None else min(conf.max_steps, max_steps)
+    t_session = time.monotonic()
+    spent0 = spent
+    running: dict[str, float] = {}
+    while step < stop:
+        lr = _lr_at(step, conf, spent)
+        for g in opt.param_groups:
+            g["lr"] = lr
+        x, y = train.batch(rng)
+        states = None
+        for c0 in range(0, conf.sequence_length, conf.tbptt_length):
+            preds = []
+            for k in range(c0, c0 + conf.tbptt_length):
+                img, states = net(x[k].contiguous(memory_format=cl), states)
+                preds.append(img)
+            loss, terms = reconstruction_loss(
+                torch.stack(preds), y[c0 : c0 + conf.tbptt_length], weights
+            )
+            opt.zero_grad(set_to_none=True)
+            loss.backward()
+            if conf.grad_clip > 0:
+                torch.nn.utils.clip_grad_norm_(net.parameters(), conf.grad_clip)
+            opt.step()
+            states = detach_states(states)
+            for key, v in terms.items():
+                running[key] = running.get(key, 0.0) + v
+        step += 1
+        spent = spent0 + time.monotonic() - t_session
+        if step % conf.log_every == 0 or step == stop:
+            n = len(range(0, conf.sequence_length, conf.tbptt_length)) * (
+                conf.log_every if step % conf.log_every == 0 else step % conf.log_every
+            )
+            avg = {k: v / n for k, v in running.items()}
+            running = {}
+            log.info(
+                "step %d/%d lr %.2e loss %.4f (l1 %.4f ssim %.4f temporal %.4f) %.0f s",
+                step, conf.max_steps, lr, avg["loss"], avg["l1"], avg["ssim"], avg["temporal"], spent,
+            )  # fmt: skip
+            write_history({"step": step, "lr": lr, "train": avg, "seconds": spent})
+        out_of_time = conf.time_budget_min > 0 and spent > conf.time_budget_min * 60
+        last = step == stop or out_of_time
+        if step % conf.val_every == 0 or last:
+            val = validate(net, v_vox, v_tgt, weights)
+            write_history({"step": step, "val": val, "seconds": spent})
+            log.info(
+                "step %d validation loss %.4f ssim %.4f", step, val["loss"], val["ssim_clipped"]
+            )
+            if val["loss"] < best_loss:
+                best_loss, best_step, best_val = val["loss"], step, val
+                save_checkpoint(
+                    net,
+                    weights_path,
+                    {**provenance_base, "step": step, "validation": val, "train_seconds": spent},
+                )
+                log.info("step %d: new best validation loss, weights -> %s", step, weights_path)
+        if step % conf.checkpoint_every == 0 or last:
+            save_state()
+        if out_of_time:
+            log.info("time budget of %.1f min reached at step %d", conf.time_budget_min, step)
+            break
+    return TrainResult(weights_path, step, best_step, best_val, spent)
+
+
+def update_provenance(weights_path: str | Path, extra: dict[str, Any]) -> None:
+    """Add ``extra`` to the provenance in the JSON beside ``weights_path`` (rewritten atomically)."""
+    meta_path = Path(weights_path).with_suffix(".json")
+    meta = json.loads(meta_path.read_text())
+    meta.setdefault("provenance", {}).update(extra)
+    tmp = meta_path.with_name(meta_path.name + ".partial")
+    tmp.write_text(json.dumps(meta, indent=2, default=str) + "\n")
+    os.replace(tmp, meta_path)
+
+
+def run_training(
+    conf: TrainConfig,
+    run_dir: str | Path,
+    weights_path: str | Path | None = None,
+    workers: int = 1,
+    resume: bool = True,
+    evaluate: bool = True,
+) -> TrainResult:
+    """The whole recipe: simulate the data set (unless cached), train, score on held-out sequences.
+
+    ``run_dir`` holds ``trainset_s<seed>.h5`` (reused when present), ``checkpoints/`` and
+    ``history.jsonl``; the best weights go to ``weights_path`` (default
+    ``run_dir/evfirenet.pt``), whose JSON gets the held-out SSIM/MSE of the weights when
+    ``evaluate``. ``workers``: processes simulating the data.
+    """
+    from evdense.training.data import generate_dataset
+    from evdense.training.evaluate import EvalConfig, evaluate_methods
+
+    run_dir = Path(run_dir)
+    weights_path = Path(weights_path) if weights_path else run_dir / "evfirenet.pt"
+    data_path = run_dir / f"trainset_s{conf.seed}.h5"
+    extra: dict[str, Any] = {}
+    if not data_path.is_file():
+        t0 = time.monotonic()
+        generate_dataset(data_path, conf.data, conf.splits(), seed=conf.seed, workers=workers)
+        extra["data_seconds"] = time.monotonic() - t0
+    result = train_model(conf, data_path, run_dir, weights_path, resume=resume)
+    extra["final_step"] = result.step
+    extra["best_step"] = result.best_step
+    extra["total_train_seconds"] = result.train_seconds
+    if evaluate and weights_path.is_file():
+        rows = evaluate_methods(data_path, {"ours": str(weights_path)}, EvalConfig())
+        extra["heldout_metrics"] = rows[0]
+    if weights_path.is_file():
+        update_provenance(weights_path, extra)
+    return result

@@ -1,0 +1,171 @@
+"""Training our reconstruction weights: simulated data, losses, the loop, resume, evaluation."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import torch
+from skimage.metrics import structural_similarity
+
+from evdense.recon.checkpoints import load_checkpoint
+from evdense.recon.postprocess import standardize_nonzero
+from evdense.training.data import TrainDataConfig, generate_dataset, load_split, simulate_sequence
+from evdense.training.evaluate import EvalConfig, evaluate_methods, frame_scores, read_heldout
+from evdense.training.losses import ssim, temporal_consistency
+from evdense.training.train import (
+    TrainConfig,
+    build_model,
+    latest_checkpoint,
+    normalize_windows,
+    train_model,
+    validate,
+)
+
+TINY = {
+    "num_train_sequences": 4,
+    "num_val_sequences": 2,
+    "num_heldout_sequences": 1,
+    "batch_size": 4,
+    "crop_size": 32,
+    "sequence_length": 8,
+    "tbptt_length": 4,
+    "max_steps": 30,
+    "warmup_steps": 2,
+    "lr": 3e-3,
+    "val_every": 30,
+    "checkpoint_every": 15,
+    "log_every": 10,
+    "data": {
+        "width": 64,
+        "height": 48,
+        "focal_px": 50.0,
+        "windows_per_sequence": 10,
+        "texture_size": 128,
+        "max_duration_s": 4.0,
+    },
+}
+
+
+@pytest.fixture(scope="module")
+def tiny_set(tmp_path_factory):
+    """A tiny simulated set (4 train, 2 val, 1 held-out sequence of 10 windows at 64 x 48)."""
+    conf = TrainConfig.from_dict(TINY)
+    path = tmp_path_factory.mktemp("trainset") / "trainset_s0.h5"
+    generate_dataset(path, conf.data, conf.splits(), seed=0)
+    return conf, path
+
+
+def test_sequence_is_seeded_and_well_formed():
+    conf = TrainDataConfig(**TINY["data"])
+    a = simulate_sequence(conf, "train", 7)
+    b = simulate_sequence(conf, "train", 7)
+    assert a is not None and b is not None
+    n = a.recipe["events_per_window"]
+    assert a.voxels.shape == (10, 5, 48, 64)
+    assert np.array_equal(a.voxels, b.voxels) and np.array_equal(a.targets, b.targets)
+    # every window holds exactly N events, and its voxel grid sums their polarities
+    assert np.all(np.diff(a.window_index) == n)
+    for k in (0, 9):
+        s, e = a.window_index[k], a.window_index[k + 1]
+        assert a.voxels[k].sum() == pytest.approx(float(a.events.p[s:e].sum()), abs=1e-2)
+    assert np.all(np.diff(a.t_end_us) > 0)
+    assert 0.0 <= a.targets.min() and a.targets.max() <= 1.0
+    # the target is the log radiance mapped by the sequence's robust range
+    lo, hi = a.log_range
+    expect = np.clip((a.log_radiance - lo) / (hi - lo), 0, 1)
+    assert np.allclose(a.targets, expect, atol=1e-5)
+    c = a.recipe["event_camera"]["contrast_pos"]
+    assert 0.1 * 0.8 <= c <= 0.8 * 1.25
+
+
+def test_ssim_matches_scikit_image():
+    rng = np.random.default_rng(0)
+    x = rng.random((40, 50))
+    y = np.clip(x + 0.2 * rng.standard_normal((40, 50)), 0, 1)
+    ours = float(ssim(torch.tensor(x)[None, None], torch.tensor(y)[None, None]))
+    ref = structural_similarity(
+        x, y, data_range=1.0, gaussian_weights=True, sigma=1.5, use_sample_covariance=False
+    )
+    assert ours == pytest.approx(ref, abs=1e-6)
+    t = torch.tensor(x)[None, None]
+    assert float(ssim(t, t)) == pytest.approx(1.0)
+
+
+def test_temporal_consistency_sees_only_flicker():
+    target = torch.rand(5, 2, 1, 8, 8)
+    assert float(temporal_consistency(target + 0.3, target)) == pytest.approx(0.0, abs=1e-6)
+    flicker = target + 0.1 * (torch.arange(5) % 2).view(5, 1, 1, 1, 1)
+    assert float(temporal_consistency(flicker, target)) == pytest.approx(0.1, abs=1e-5)
+
+
+def test_window_normalisation_matches_inference():
+    rng = np.random.default_rng(1)
+    vox = rng.standard_normal((3, 5, 12, 16)).astype(np.float32)
+    vox[rng.random(vox.shape) < 0.7] = 0
+    ours = normalize_windows(vox).float()
+    for k in range(3):
+        ref = standardize_nonzero(torch.from_numpy(vox[k].copy())[None])[0]
+        assert torch.allclose(ours[k], ref, atol=5e-3)  # float16 storage
+
+
+@pytest.mark.slow
+def test_short_training_lowers_validation_loss(tiny_set, tmp_path):
+    conf, path = tiny_set
+    v_vox, v_tgt = load_split(path, "val")
+    v_vox, v_tgt = normalize_windows(v_vox), torch.from_numpy(v_tgt)
+    before = validate(build_model(conf), v_vox, v_tgt, conf.loss_weights())
+    res = train_model(conf, path, tmp_path / "run", tmp_path / "w.pt")
+    assert res.step == conf.max_steps
+    after = validate(load_checkpoint(tmp_path / "w.pt").net, v_vox, v_tgt, conf.loss_weights())
+    assert after["loss"] < 0.8 * before["loss"]
+    assert after["ssim"] > before["ssim"]
+    meta = json.loads((tmp_path / "w.json").read_text())
+    assert meta["arch"] == "firenet" and meta["provenance"]["seed"] == conf.seed
+    assert meta["provenance"]["data_recipe"]["width"] == 64
+    lines = (tmp_path / "run" / "history.jsonl").read_text().splitlines()
+    assert any("val" in json.loads(ln) for ln in lines)
+
+
+@pytest.mark.slow
+def test_resume_gives_the_uninterrupted_state(tiny_set, tmp_path):
+    conf, path = tiny_set
+    conf = TrainConfig.from_dict({**TINY, "max_steps": 6, "checkpoint_every": 3, "val_every": 100})
+    straight = tmp_path / "straight"
+    train_model(conf, path, straight, straight / "w.pt")
+    split = tmp_path / "split"
+    first = train_model(conf, path, split, split / "w.pt", max_steps=3)
+    assert first.step == 3 and latest_checkpoint(split).name == "step_0000003.pt"
+    second = train_model(conf, path, split, split / "w.pt")
+    assert second.step == 6
+    a = torch.load(latest_checkpoint(straight), weights_only=True)
+    b = torch.load(latest_checkpoint(split), weights_only=True)
+    assert a["step"] == b["step"] == 6
+    for k in a["model"]:
+        assert torch.equal(a["model"][k], b["model"][k]), k
+    sa, sb = a["optimizer"]["state"], b["optimizer"]["state"]
+    assert all(torch.equal(sa[i]["exp_avg"], sb[i]["exp_avg"]) for i in sa)
+    assert a["rng"] == b["rng"]
+
+
+def test_evaluation_scores_a_perfect_method_as_perfect(tiny_set):
+    _, path = tiny_set
+    seq = read_heldout(path)[0]
+    conf = EvalConfig()
+    s = frame_scores(seq.targets[-1], seq.targets[-1], conf)
+    assert s["ssim"] == pytest.approx(1.0) and s["mse"] == pytest.approx(0.0)
+    rows = evaluate_methods(path, {"highpass": None, "integrate": None}, conf)
+    assert [r["method"] for r in rows] == ["highpass", "integrate"]
+    for r in rows:
+        assert r["frames"] == 10 - conf.skip_windows
+        assert -1.0 <= r["ssim"] < 1.0 and 0.0 < r["mse"] < 1.0
+
+
+def test_config_rejects_unknown_keys():
+    with pytest.raises(ValueError, match="bogus"):
+        TrainConfig.from_dict({"bogus": 1})
+    with pytest.raises(ValueError, match="data.nope"):
+        TrainConfig.from_dict({"data": {"nope": 1}})
+    with pytest.raises(ValueError, match="tbptt"):
+        TrainConfig.from_dict({"sequence_length": 10, "tbptt_length": 4})
