@@ -7,7 +7,8 @@ import open3d as o3d
 import pytest
 from scipy.spatial.transform import Rotation
 
-from evdense.evaluate.geometry import evaluate_geometry, surface_distance
+from evdense.camera import Camera
+from evdense.evaluate.geometry import evaluate_geometry, observed_surface_samples, surface_distance
 from evdense.evaluate.images import image_metrics
 from evdense.evaluate.trajectory import evaluate_trajectory
 from evdense.poses import read_tum
@@ -21,7 +22,9 @@ def unit_square_mesh() -> o3d.geometry.TriangleMesh:
 
 
 def test_surface_distance_is_exact():
-    d = surface_distance(unit_square_mesh(), np.array([[0.5, 0.5, 0.3], [2.0, 0.5, 0.0], [0.2, 0.2, -0.1]]))
+    d = surface_distance(
+        unit_square_mesh(), np.array([[0.5, 0.5, 0.3], [2.0, 0.5, 0.0], [0.2, 0.2, -0.1]])
+    )
     np.testing.assert_allclose(d, [0.3, 1.0, 0.1], atol=1e-6)
 
 
@@ -48,6 +51,33 @@ def test_mesh_against_itself_is_perfect():
     m = evaluate_geometry(gt, gt, relative_thresholds=[0.001], num_samples=20_000)
     assert m.precision[0] == 1.0 and m.recall[0] == 1.0
     assert m.chamfer < 1e-6
+
+
+def test_observed_surface_is_what_the_cameras_see():
+    # A unit cube, and a camera 3 m above its top face looking straight down (z down): with a
+    # 40 x 40 px image and f = 40 px it sees a 1.5 m wide square at 3 m, so only the top face
+    # (the sides are edge-on, the bottom hidden). A second camera just beside it makes two views.
+    cube = o3d.geometry.TriangleMesh.create_box(1.0, 1.0, 1.0)
+    cam = Camera(40, 40, 40.0, 40.0, 19.5, 19.5)
+    down = np.diag([1.0, -1.0, -1.0])  # camera z along world -z
+    poses = np.tile(np.eye(4), (2, 1, 1))
+    poses[:, :3, :3] = down
+    poses[0, :3, 3] = [0.5, 0.5, 4.0]
+    poses[1, :3, 3] = [0.55, 0.5, 4.0]
+    pts, frac = observed_surface_samples(cube, cam, poses, 5000, min_views=2)
+    assert len(pts) == 5000
+    assert pts[:, 2].min() > 1.0 - 1e-3  # all on the top face (to the ray-casting tolerance)
+    assert frac == pytest.approx(1 / 6, abs=0.02)  # one face of six
+    # Seen by only one of the cameras when it is moved away: nothing has two views.
+    poses[1, :3, 3] = [20.0, 0.5, 4.0]
+    pts, frac = observed_surface_samples(cube, cam, poses, 1000, min_views=2, max_rounds=2)
+    assert len(pts) == 0 and frac == 0.0
+    # Completeness on the observed part: the top face alone is a complete reconstruction of it.
+    top = observed_surface_samples(cube, cam, poses[:1], 5000, min_views=1)[0]
+    m_obs = evaluate_geometry(top, cube, [0.01], 20_000, gt_samples=top[::2])
+    m_full = evaluate_geometry(top, cube, [0.01], 20_000)
+    assert m_obs.recall[0] == 1.0
+    assert m_full.recall[0] == pytest.approx(1 / 6 + 0.01, abs=0.03)
 
 
 def random_trajectory(n: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:

@@ -8,6 +8,12 @@ Definitions (the usual ones of the Tanks and Temples / ETH3D benchmarks):
   fraction of GT samples within ``tau`` of it;
 - F-score(tau) = 2 P R / (P + R); Chamfer = mean accuracy + mean completeness.
 
+Completeness is measured on the whole GT surface, or (``gt_samples``, see
+:func:`observed_surface_samples`) on the part of it that the GT cameras saw: a reconstruction
+cannot be asked to recover walls the camera never looked at, and counting them would bury every
+difference between image sources under the same unseen area (ETH3D and DTU likewise score
+completeness only where their ground truth was observed).
+
 Distances to the GT surface are exact point-to-triangle distances (open3d ray-casting scene);
 distances to a reconstruction are to its points, or to its surface when it is a mesh.
 Thresholds are absolute (metres) or relative to the GT bounding-box diagonal.
@@ -77,6 +83,65 @@ def sample_surface(mesh: o3d.geometry.TriangleMesh, num_points: int, seed: int =
     return w0[:, None] * a[tri] + w1[:, None] * b[tri] + w2[:, None] * c[tri]
 
 
+def observed_surface_samples(
+    mesh: o3d.geometry.TriangleMesh,
+    camera,
+    poses_wc: np.ndarray,
+    num_samples: int,
+    min_views: int = 2,
+    seed: int = 0,
+    max_rounds: int = 8,
+) -> tuple[np.ndarray, float]:
+    """Uniform samples of the part of ``mesh`` seen by at least ``min_views`` of the cameras.
+
+    A sample is seen by a camera (``camera``: :class:`evdense.camera.Camera`; ``poses_wc``:
+    camera-to-world ``(V, 4, 4)``) when it lies in front of it, projects inside the image and the
+    first surface along the ray from the camera centre is the sample itself (ray casting). Area-
+    uniform candidates are drawn in rounds of ``num_samples`` until ``num_samples`` are kept or
+    ``max_rounds`` rounds are spent.
+
+    Returns the kept samples ``(M, 3)`` (``M <= num_samples``) and the fraction of the surface
+    area seen (kept / drawn).
+    """
+    scene = o3d.t.geometry.RaycastingScene()
+    scene.add_triangles(o3d.t.geometry.TriangleMesh.from_legacy(mesh))
+    tol = 1e-4 * bbox_diagonal(mesh)
+    kept: list[np.ndarray] = []
+    drawn = total = 0
+    for r in range(max_rounds):
+        cand = sample_surface(mesh, num_samples, seed + 1000 * r)
+        seen = np.zeros(len(cand), np.int32)
+        for T in poses_wc:
+            c = T[:3, 3]
+            pc = (cand - c) @ T[:3, :3]  # world -> camera: R^T (p - c)
+            front = pc[:, 2] > 1e-6
+            uv = np.full((len(cand), 2), -1.0)
+            uv[front] = camera.project(pc[front])
+            inside = (
+                front
+                & (uv[:, 0] >= -0.5)
+                & (uv[:, 0] <= camera.width - 0.5)
+                & (uv[:, 1] >= -0.5)
+                & (uv[:, 1] <= camera.height - 0.5)
+            )
+            idx = np.flatnonzero(inside)
+            if len(idx) == 0:
+                continue
+            d = cand[idx] - c
+            dist = np.linalg.norm(d, axis=1)
+            rays = np.hstack([np.broadcast_to(c, d.shape), d / dist[:, None]]).astype(np.float32)
+            hit = scene.cast_rays(o3d.core.Tensor(rays))["t_hit"].numpy()
+            seen[idx[hit >= dist - tol - 1e-5 * dist]] += 1
+        ok = cand[seen >= min_views]
+        drawn += len(cand)
+        total += len(ok)
+        kept.append(ok)
+        if total >= num_samples:
+            break
+    pts = np.concatenate(kept)[:num_samples] if kept else np.zeros((0, 3))
+    return pts, total / max(drawn, 1)
+
+
 def bbox_diagonal(mesh: o3d.geometry.TriangleMesh) -> float:
     """Length of the axis-aligned bounding-box diagonal of ``mesh`` (metres)."""
     v = np.asarray(mesh.vertices)
@@ -90,6 +155,7 @@ def evaluate_geometry(
     num_samples: int = 200_000,
     crop_margin: float = 0.0,
     seed: int = 0,
+    gt_samples: np.ndarray | None = None,
 ) -> GeometryMetrics:
     """Compare a reconstruction with the GT mesh.
 
@@ -100,6 +166,8 @@ def evaluate_geometry(
         num_samples: GT surface samples for completeness (and samples of a reconstructed mesh).
         crop_margin: reconstructed points outside the GT bounding box grown by this fraction of
             the diagonal are dropped before scoring (0 keeps everything).
+        gt_samples: the GT points completeness is measured on ``(M, 3)`` (for example
+            :func:`observed_surface_samples`); default ``num_samples`` samples of the whole mesh.
     """
     gt = _as_legacy_mesh(gt_mesh)
     diag = bbox_diagonal(gt)
@@ -112,7 +180,10 @@ def evaluate_geometry(
         lo, hi = v.min(0) - crop_margin * diag, v.max(0) + crop_margin * diag
         pts = pts[np.all((pts >= lo) & (pts <= hi), axis=1)]
     taus = [r * diag for r in relative_thresholds]
-    gt_samples = sample_surface(gt, num_samples, seed + 1)
+    if gt_samples is None:
+        gt_samples = sample_surface(gt, num_samples, seed + 1)
+    elif len(gt_samples) == 0:
+        raise ValueError("gt_samples is empty: no observed GT surface to measure completeness on")
     if len(pts) == 0:
         inf = float("inf")
         return GeometryMetrics(

@@ -20,7 +20,12 @@ import numpy as np
 import open3d as o3d
 
 from evdense.align import apply_sim3
-from evdense.evaluate.geometry import bbox_diagonal, evaluate_geometry, sample_surface
+from evdense.evaluate.geometry import (
+    bbox_diagonal,
+    evaluate_geometry,
+    observed_surface_samples,
+    sample_surface,
+)
 from evdense.evaluate.images import compare_to_gt
 from evdense.evaluate.trajectory import evaluate_trajectory
 from evdense.log import get_logger
@@ -39,6 +44,13 @@ class EvalConfig:
     """The threshold (one of the above) reported as *the* F-score in tables and plots."""
     num_samples: int = 200_000
     """GT surface samples for completeness (and samples of each reconstructed mesh)."""
+    completeness_reference: str = "observed"
+    """GT surface that completeness (recall) is measured on: ``observed`` (the part seen by the GT
+    cameras along the whole trajectory, the same for every image source) or ``full`` (all of it)."""
+    visibility_views: int = 60
+    """GT cameras, evenly spaced in time along the trajectory, that define the observed surface."""
+    visibility_min_views: int = 2
+    """A GT surface point counts as observed when at least this many of those cameras see it."""
     crop_margin: float = 0.02
     """Reconstructions are cropped to the GT bounding box grown by this fraction of its diagonal."""
     icp: bool = True
@@ -59,7 +71,50 @@ class EvalConfig:
         unknown = set(d) - set(cls.__dataclass_fields__)
         if unknown:
             raise ValueError(f"evaluate: unknown keys {sorted(unknown)}")
-        return cls(**d)
+        conf = cls(**d)
+        if conf.completeness_reference not in ("observed", "full"):
+            raise ValueError(
+                "evaluate.completeness_reference: observed or full, "
+                f"not {conf.completeness_reference!r}"
+            )
+        return conf
+
+
+def gt_reference_samples(
+    gt_dir: Path, gt_mesh: o3d.geometry.TriangleMesh, conf: EvalConfig
+) -> tuple[np.ndarray | None, dict[str, Any]]:
+    """The GT points completeness is measured on, and a description of them for the metrics file.
+
+    ``observed``: :func:`~evdense.evaluate.geometry.observed_surface_samples` from
+    ``visibility_views`` GT cameras evenly spaced in time over ``gt_dir/trajectory.txt``;
+    ``full``: None (the whole surface, sampled by :func:`evaluate_geometry`).
+    """
+    if conf.completeness_reference == "full":
+        return None, {"kind": "full", "num_samples": conf.num_samples}
+    from evdense.align import interpolate_poses
+    from evdense.camera import load_camera
+
+    t_gt, T_gt = read_tum(gt_dir / "trajectory.txt")
+    times = np.linspace(t_gt.min(), t_gt.max(), conf.visibility_views)
+    _, poses = interpolate_poses(times, t_gt, T_gt)
+    cam = load_camera(gt_dir / "intrinsics.yaml")
+    pts, frac = observed_surface_samples(
+        gt_mesh, cam, poses, conf.num_samples, conf.visibility_min_views, seed=1
+    )
+    if len(pts) == 0:
+        raise ValueError(f"{gt_dir}: the GT cameras see no part of the GT mesh")
+    log.info(
+        "observed GT surface: %.1f%% of the mesh area (%d samples, >= %d of %d views)",
+        100 * frac, len(pts), conf.visibility_min_views, conf.visibility_views,
+    )  # fmt: skip
+    info = {
+        "kind": "observed",
+        "num_samples": len(pts),
+        "observed_area_fraction": frac,
+        "views": conf.visibility_views,
+        "min_views": conf.visibility_min_views,
+    }
+    return pts, info
 
 
 def _read_cloud(path: Path) -> np.ndarray:
@@ -192,6 +247,7 @@ def evaluate_source(
     }
     gt_mesh = o3d.io.read_triangle_mesh(str(gt_dir / "mesh.ply"))
     diag = bbox_diagonal(gt_mesh)
+    gt_samples, result["gt_reference"] = gt_reference_samples(gt_dir, gt_mesh, conf)
     if sfm_stats.get("failed"):
         # A failed SfM is a result: nothing was reconstructed, every F-score is 0.
         log.warning(
@@ -202,7 +258,7 @@ def evaluate_source(
         result["failed"] = True
         result["error"] = sfm_stats.get("error")
         empty = evaluate_geometry(
-            np.zeros((0, 3)), gt_mesh, conf.relative_thresholds, 1000
+            np.zeros((0, 3)), gt_mesh, conf.relative_thresholds, 1000, gt_samples=gt_samples
         ).to_dict()
         result["geometry"] = {name: empty for name in ["sparse", "dense", *(meshes or {})]}
         if frames_dir is not None:
@@ -259,7 +315,12 @@ def evaluate_source(
         else:
             obj.transform(H)
         m = evaluate_geometry(
-            obj, gt_mesh, conf.relative_thresholds, conf.num_samples, conf.crop_margin
+            obj,
+            gt_mesh,
+            conf.relative_thresholds,
+            conf.num_samples,
+            conf.crop_margin,
+            gt_samples=gt_samples,
         )
         geometry[name] = m.to_dict()
         log.info(
