@@ -29,6 +29,7 @@ include: "workflow/rules/mvs.smk"
 include: "workflow/rules/mesh.smk"
 include: "workflow/rules/evaluate.smk"
 include: "workflow/rules/report.smk"
+include: "workflow/rules/train.smk"
 
 
 rule all:
