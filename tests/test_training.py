@@ -13,7 +13,7 @@ from evdense.recon.checkpoints import load_checkpoint
 from evdense.recon.postprocess import standardize_nonzero
 from evdense.training.data import TrainDataConfig, generate_dataset, load_split, simulate_sequence
 from evdense.training.evaluate import EvalConfig, evaluate_methods, frame_scores, read_heldout
-from evdense.training.losses import ssim, temporal_consistency
+from evdense.training.losses import LossWeights, reconstruction_loss, ssim, temporal_consistency
 from evdense.training.train import (
     TrainConfig,
     build_model,
@@ -98,6 +98,22 @@ def test_temporal_consistency_sees_only_flicker():
     assert float(temporal_consistency(target + 0.3, target)) == pytest.approx(0.0, abs=1e-6)
     flicker = target + 0.1 * (torch.arange(5) % 2).view(5, 1, 1, 1, 1)
     assert float(temporal_consistency(flicker, target)) == pytest.approx(0.1, abs=1e-5)
+
+
+def test_affine_invariant_loss_ignores_gain_and_offset_per_frame():
+    target = torch.rand(4, 3, 1, 16, 16, dtype=torch.float64)
+    gain = torch.tensor([0.5, 2.0, 1.3], dtype=torch.float64).view(1, 3, 1, 1, 1)
+    pred = gain * target + torch.linspace(-0.2, 0.4, 4, dtype=torch.float64).view(4, 1, 1, 1, 1)
+    inv = LossWeights(affine_invariant=True)
+    loss, terms = reconstruction_loss(pred, target, inv)
+    assert terms["l1"] < 1e-6 and terms["ssim"] == pytest.approx(1.0, abs=1e-6)
+    assert float(loss) == pytest.approx(0.0, abs=1e-5)
+    plain, _ = reconstruction_loss(pred, target, LossWeights())
+    assert float(plain) > 0.1
+    # the anchor term is the plain L1 of the raw output
+    _, anchored = reconstruction_loss(pred, target, LossWeights(affine_invariant=True, anchor=0.1))
+    assert anchored["loss"] == pytest.approx(0.1 * anchored["raw_l1"], abs=1e-5)
+    assert anchored["raw_l1"] == pytest.approx(float((pred - target).abs().mean()))
 
 
 def test_window_normalisation_matches_inference():

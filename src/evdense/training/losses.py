@@ -2,6 +2,13 @@
 
 All take predictions and targets ``(N, 1, H, W)`` (or a stack ``(T, N, 1, H, W)`` for the
 temporal term) in target units ([0, 1]) and return a scalar tensor.
+
+Events fix intensity only up to a gain and an offset per pixel history, and neither the quality
+metric (each frame rescaled by its robust range) nor SfM cares about a global gain and offset of
+a frame. With ``LossWeights.affine_invariant`` the L1 and SSIM terms are computed after the least-
+squares gain and offset of each predicted frame onto its target (:func:`affine_align`), so that
+training spends its signal on structure rather than on guessing brightness; a plain L1 with the
+small weight ``anchor`` keeps the raw output in the target's [0, 1] range (the pipeline clips it).
 """
 
 from __future__ import annotations
@@ -52,6 +59,22 @@ def temporal_consistency(pred: Tensor, target: Tensor) -> Tensor:
     return (torch.diff(pred, dim=0) - torch.diff(target, dim=0)).abs().mean()
 
 
+def affine_align(pred: Tensor, target: Tensor, eps: float = 1e-4) -> Tensor:
+    """``a * pred + b`` with the per-frame ``(a, b)`` minimising ``||a pred + b - target||^2``.
+
+    ``pred``, ``target``: ``(N, 1, H, W)``. ``eps`` (a standard deviation) damps the gain of a
+    nearly flat predicted frame towards 0, so the alignment never divides by zero.
+    Differentiable in ``pred``.
+    """
+    dims = (1, 2, 3)
+    mp = pred.mean(dims, keepdim=True)
+    mt = target.mean(dims, keepdim=True)
+    dp = pred - mp
+    var = dp.square().mean(dims, keepdim=True)
+    a = (dp * (target - mt)).mean(dims, keepdim=True) / (var + eps**2)
+    return a * dp + mt
+
+
 @dataclass
 class LossWeights:
     """Weights of the loss terms (config keys ``train.loss_*``)."""
@@ -62,6 +85,10 @@ class LossWeights:
     """Weight of ``1 - SSIM``."""
     temporal: float = 0.2
     """Weight of the temporal-consistency term."""
+    affine_invariant: bool = False
+    """L1 and SSIM after each frame's least-squares gain and offset onto its target."""
+    anchor: float = 0.0
+    """Weight of a plain L1 on the raw output (keeps it in [0, 1] when ``affine_invariant``)."""
 
 
 def reconstruction_loss(
@@ -71,13 +98,21 @@ def reconstruction_loss(
     t, n = pred.shape[:2]
     flat_p = pred.reshape(t * n, *pred.shape[2:])
     flat_t = target.reshape(t * n, *target.shape[2:])
-    l1 = (flat_p - flat_t).abs().mean()
-    s = ssim(flat_p, flat_t)
-    tc = temporal_consistency(pred, target)
+    raw_l1 = (flat_p - flat_t).abs().mean()
+    if weights.affine_invariant:
+        aligned = affine_align(flat_p, flat_t)
+        l1 = (aligned - flat_t).abs().mean()
+        s = ssim(aligned, flat_t)
+        tc = temporal_consistency(aligned.reshape(pred.shape), target)
+    else:
+        l1, s, tc = raw_l1, ssim(flat_p, flat_t), temporal_consistency(pred, target)
     total = weights.l1 * l1 + weights.ssim * (1 - s) + weights.temporal * tc
+    if weights.anchor:
+        total = total + weights.anchor * raw_l1
     return total, {
         "l1": float(l1.detach()),
         "ssim": float(s.detach()),
         "temporal": float(tc.detach()),
+        "raw_l1": float(raw_l1.detach()),
         "loss": float(total.detach()),
     }

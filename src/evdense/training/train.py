@@ -82,6 +82,10 @@ class TrainConfig:
     """Weight of the (1 - SSIM) loss."""
     loss_temporal: float = 0.2
     """Weight of the temporal-consistency loss."""
+    loss_affine_invariant: bool = False
+    """L1, SSIM and temporal terms after each frame's least-squares gain and offset onto its target."""
+    loss_anchor: float = 0.0
+    """Weight of a plain L1 on the raw output (keeps it in [0, 1] with ``loss_affine_invariant``)."""
     augment: bool = True
     """Random horizontal flips and polarity inversions."""
     checkpoint_every: int = 25
@@ -128,7 +132,13 @@ class TrainConfig:
         }
 
     def loss_weights(self) -> LossWeights:
-        return LossWeights(self.loss_l1, self.loss_ssim, self.loss_temporal)
+        return LossWeights(
+            self.loss_l1,
+            self.loss_ssim,
+            self.loss_temporal,
+            self.loss_affine_invariant,
+            self.loss_anchor,
+        )
 
 
 @dataclass
