@@ -148,7 +148,11 @@ def test_claim_table_by_hand():
 
     rows = []
     # scene a: speeds 1 and 32 at dynamic range 1, dynamic range 1e5 at speed 1
-    for speed, dr, ev, conv, gt in ((1, 1, 0.9, 0.9, 0.95), (32, 1, 0.8, 0.0, 0.0), (1, 1e5, 0.85, 0.6, 0.9)):
+    for speed, dr, ev, conv, gt in (
+        (1, 1, 0.9, 0.9, 0.95),
+        (32, 1, 0.8, 0.0, 0.0),
+        (1, 1e5, 0.85, 0.6, 0.9),
+    ):
         for kind, f, n in (("events", ev, 60), ("conventional", conv, 3), ("gt", gt, 3)):
             rows.append({"dataset": f"a_s{speed}_dr{dr}", "scene": "a", "speed": float(speed),
                          "dynamic_range": float(dr), "source_kind": kind, "source": kind,
@@ -160,8 +164,12 @@ def test_claim_table_by_hand():
     assert fast["claim_holds"] and "oracle reconstructed nothing from 3 frames" in fast["note"]
     assert np.isnan(fast["of_oracle"]) and fast["frames_events"] == 60
     assert hdr["dynamic_range"] == 1e5 and hdr["margin"] == pytest.approx(0.25)
-    assert hdr["of_oracle"] == pytest.approx(0.85 / 0.9) and hdr["claim_holds"] and hdr["note"] == ""
+    assert (
+        hdr["of_oracle"] == pytest.approx(0.85 / 0.9) and hdr["claim_holds"] and hdr["note"] == ""
+    )
     # a margin below 0.15 fails the claim
     df = pd.DataFrame(rows)
-    df.loc[(df["dynamic_range"] == 1e5) & (df["source_kind"] == "conventional"), "dense_fscore"] = 0.75
+    df.loc[(df["dynamic_range"] == 1e5) & (df["source_kind"] == "conventional"), "dense_fscore"] = (
+        0.75
+    )
     assert not claim_table(df).set_index("condition").loc["highest dynamic range", "claim_holds"]
