@@ -58,7 +58,7 @@ def main() -> None:
 
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
-        ingest_recording(recording, tmp / "events.h5")
+        t0 = ingest_recording(recording, tmp / "events.h5").t_start_us * 1e-6
         make_windows(
             tmp / "events.h5", tmp / "windows.h5", WindowConfig(num_events=args.events_per_window)
         )
