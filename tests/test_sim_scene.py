@@ -59,11 +59,22 @@ def test_preset_is_closed_lit_and_at_a_sensible_distance(name):
     assert np.linalg.norm(p[1] - p[0]) > 1.0
 
 
-def test_dynamic_range_scales_only_light_surfaces():
-    a = load_scene({"scene": "room"}, SMALL)
-    b = load_scene({"scene": "room", "dynamic_range": 1000.0}, SMALL)
-    np.testing.assert_allclose(b.tri_gain[b.tri_light], 1000.0 * a.tri_gain[a.tri_light], rtol=1e-6)
-    np.testing.assert_array_equal(b.tri_gain[~b.tri_light], a.tri_gain[~a.tri_light])
+@pytest.mark.parametrize("name", sorted(PRESETS))
+def test_dynamic_range_scales_light_and_lit_surfaces_only(name):
+    a = load_scene({"scene": name}, SMALL)
+    b = load_scene({"scene": name, "dynamic_range": 1000.0}, SMALL)
+    bright = b.tri_light | b.tri_lit
+    assert b.tri_lit.any() and not (b.tri_lit & b.tri_light).any()
+    np.testing.assert_allclose(b.tri_gain[bright], 1000.0 * a.tri_gain[bright], rtol=1e-6)
+    np.testing.assert_array_equal(b.tri_gain[~bright], a.tri_gain[~bright])
+    # a lit surface keeps its shading (faces differ), a light has none
+    assert np.unique(b.tri_gain[b.tri_lit].round(3)).size > 1 or b.tri_lit.sum() < 3
+
+
+def test_a_material_is_light_or_lit_not_both():
+    mats = {"m": {"texture": {"type": "checker", "size": 16}, "light": True, "lit": True}}
+    with pytest.raises(ValueError, match=r"materials\.m: a material is a light or lit"):
+        load_scene({"scene": _spec(materials=mats)}, SMALL)
 
 
 def test_trajectory_speed_and_key_poses():

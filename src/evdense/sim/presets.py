@@ -1,9 +1,12 @@
 """The shipped scene presets: ``room``, ``desk`` and ``facade`` (scene specs, see
 :mod:`evdense.sim.scene` for the format).
 
-Each is enclosed (a textured room or backdrop box, so no ray escapes), richly textured, has a light
-surface (lamp, window, screen) whose radiance the dataset's ``dynamic_range`` multiplies, and a
-smooth ~4 s path that translates the camera 1 to 4 m from the surfaces it looks at.
+Each is enclosed (a textured room or backdrop box, so no ray escapes), richly textured, has light
+surfaces (lamp, window, screen) and lit surfaces (``room``: the floor and the checker objects in the
+window's sunlight, about 38 % of a view; ``desk``: the desk top and books under the lamp, ~33 %;
+``facade``: the sunlit brick front, ~74 %, its trim, doorway and glass in shadow) whose radiance the
+dataset's ``dynamic_range`` multiplies, and a smooth ~4 s path that translates the camera 1 to 4 m
+from the surfaces it looks at.
 World frame: metres, z up.
 """
 
@@ -34,6 +37,7 @@ ROOM = {
         "floor": {
             "texture": {"type": "noise", "size": 1024, "beta": 2.4, "low": 0.06, "high": 0.7},
             "tile_m": 4.0,
+            "lit": True,  # sunlight through the window
         },
         "ceiling": {
             "texture": {"type": "noise", "beta": 2.8, "low": 0.3, "high": 0.8},
@@ -47,6 +51,7 @@ ROOM = {
         "checker": {
             "texture": {"type": "checker", "squares": 8, "low": 0.08, "high": 0.75},
             "tile_m": 0.8,
+            "lit": True,
         },
         "gravel": {"texture": "skimage:gravel", "tile_m": 0.8},
         "poster": {"texture": "skimage:astronaut", "tile_m": 1.4},
@@ -175,17 +180,23 @@ DESK = {
         "wood": {
             "texture": {"type": "noise", "beta": 2.2, "low": 0.15, "high": 0.6},
             "tile_m": 1.0,
+            "lit": True,  # the pool of the desk lamp
         },
         "plastic": {
             "texture": {"type": "noise", "beta": 2.6, "low": 0.05, "high": 0.25},
             "tile_m": 0.5,
         },
-        "book1": {"texture": "skimage:text", "tile_m": 0.3},
+        "book1": {"texture": "skimage:text", "tile_m": 0.3, "lit": True},
         "book2": {
             "texture": {"type": "checker", "squares": 8, "low": 0.1, "high": 0.7},
             "tile_m": 0.3,
+            "lit": True,
         },
-        "book3": {"texture": {"type": "dead_leaves", "rmin": 2, "rmax": 60}, "tile_m": 0.3},
+        "book3": {
+            "texture": {"type": "dead_leaves", "rmin": 2, "rmax": 60},
+            "tile_m": 0.3,
+            "lit": True,
+        },
         "jar": {"texture": "skimage:coins", "tile_m": 0.4},
         "tissue": {"texture": "skimage:camera", "tile_m": 0.3},
         "picture": {"texture": "skimage:coffee", "tile_m": 0.8},
@@ -416,6 +427,7 @@ FACADE = {
         "brick": {
             "texture": {"type": "image", "path": "skimage:brick", "repeat": 4, "variation": 0.6},
             "tile_m": 6.0,
+            "lit": True,  # the front in the sun; trim, doorway, glass and street in shadow
         },
         "concrete": {
             "texture": {"type": "noise", "beta": 2.4, "low": 0.25, "high": 0.75},

@@ -28,7 +28,11 @@ and optional ``up``. Paths (textures, meshes) are relative to the scene YAML's f
 
 Radiance is linear and relative: an ordinary surface has radiance ``reflectance * radiance * shading``
 (shading = ``ambient + (1 - ambient) * |n . direction|``, a fixed soft key light so that faces differ);
-a light surface (``light: true``) has ``reflectance * radiance * dynamic_range`` and no shading.
+a light surface (``light: true``) has ``reflectance * radiance * dynamic_range`` and no shading;
+a lit surface (``lit: true``: the floor in the sunlight from a window, the desk under its lamp) has
+the ordinary radiance times ``dynamic_range``. Lights alone make an HDR scene whose bright part is
+a few small patches, which a metering camera simply lets saturate; lit surfaces put a large part of
+every view that many times above the rest, which no 8-bit exposure holds at once.
 """
 
 from __future__ import annotations
@@ -86,6 +90,9 @@ class Material:
     """Radiance multiplier (relative units; ordinary surfaces ~1)."""
     light: bool
     """True for light sources (lamps, windows): radiance times the dataset's dynamic_range, unshaded."""
+    lit: bool = False
+    """True for surfaces in the light's beam (sunlit floor, the desk under the lamp): shaded radiance
+    times the dataset's dynamic_range."""
 
 
 @dataclass
@@ -111,6 +118,8 @@ class Scene:
     tri_gain: np.ndarray
     tri_normal: np.ndarray
     tri_light: np.ndarray
+    tri_lit: np.ndarray
+    """``(T,)`` bool mask of lit surfaces (radiance times ``dynamic_range``, shaded)."""
     textures: list[np.ndarray]
     """Reflectance textures ``(h, w)`` float32, power-of-two sides."""
     materials: list[Material]
@@ -316,7 +325,9 @@ def build_scene(spec: dict, dataset: dict, render: RenderConfig, base_dir: Path 
     is_light = np.array([materials[mat_names[k]].light for k in tri_texture], bool)
     base_rad = np.array([materials[mat_names[k]].radiance for k in tri_texture])
     shade = ambient + (1.0 - ambient) * np.abs(normal @ light_dir)
-    gain = np.where(is_light, base_rad * float(dataset["dynamic_range"]), base_rad * shade)
+    is_lit = np.array([materials[mat_names[k]].lit for k in tri_texture], bool)
+    dr = float(dataset["dynamic_range"])
+    gain = np.where(is_light, base_rad * dr, base_rad * shade * np.where(is_lit, dr, 1.0))
 
     resolved_spec = {
         "name": name,
@@ -341,6 +352,7 @@ def build_scene(spec: dict, dataset: dict, render: RenderConfig, base_dir: Path 
         tri_gain=gain.astype(np.float32),
         tri_normal=normal.astype(np.float32),
         tri_light=is_light,
+        tri_lit=is_lit,
         textures=textures,
         materials=[materials[m] for m in mat_names],
         render=render,
@@ -354,14 +366,14 @@ def build_scene(spec: dict, dataset: dict, render: RenderConfig, base_dir: Path 
 def _parse_materials(mats, base_dir: Path | None) -> dict[str, Material]:
     if not isinstance(mats, dict) or not mats:
         raise ValueError(
-            "materials: need a mapping of material names to {texture, tile_m, radiance, light}"
+            "materials: need a mapping of material names to {texture, tile_m, radiance, light, lit}"
         )
     out = {}
     for name, m in mats.items():
         key = f"materials.{name}"
         if not isinstance(m, dict):
             raise ValueError(f"{key}: expected a mapping, got {m!r}")
-        allowed = {"texture", "tile_m", "radiance", "light"}
+        allowed = {"texture", "tile_m", "radiance", "light", "lit"}
         for k in m:
             if k not in allowed:
                 raise ValueError(f"{key}.{k}: unknown key (known: {sorted(allowed)})")
@@ -372,7 +384,10 @@ def _parse_materials(mats, base_dir: Path | None) -> dict[str, Material]:
         _check_number(f"{key}.tile_m", tile, lo=0.0)
         rad = m.get("radiance", 1.0)
         _check_number(f"{key}.radiance", rad, lo=0.0)
-        out[name] = Material(name, tex, float(tile), float(rad), bool(m.get("light", False)))
+        light, lit = bool(m.get("light", False)), bool(m.get("lit", False))
+        if light and lit:
+            raise ValueError(f"{key}: a material is a light or lit by one, not both")
+        out[name] = Material(name, tex, float(tile), float(rad), light, lit)
     return out
 
 
