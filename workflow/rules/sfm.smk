@@ -16,8 +16,14 @@ def sfm_inputs(wildcards):
 
 
 def sfm_conf(wildcards):
-    """The sfm config section with `calibration: dataset` resolved to a file."""
-    conf = dict(config["sfm"])
+    """The sfm config section with `calibration: dataset` resolved to a file, less the keys that
+    do not change a finished model (on_failure, colmap_log_level: the script reads them from the
+    config), so that flipping them reruns nothing already made."""
+    conf = {
+        k: v
+        for k, v in config["sfm"].items()
+        if k not in ("on_failure", "colmap_log_level")
+    }
     if conf["calibration"] == "dataset":
         d = wildcards.dataset
         ds = DATASETS[d]
