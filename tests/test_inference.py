@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import copy
+from pathlib import Path
+
 import numpy as np
 import pytest
 import torch
@@ -10,7 +13,7 @@ from PIL import Image
 from evdense.events.container import Events, write_events
 from evdense.events.voxel import VoxelConfig, VoxelFile, make_voxels
 from evdense.events.windows import WindowConfig, make_windows
-from evdense.recon.checkpoints import save_checkpoint
+from evdense.recon.checkpoints import load_checkpoint, save_checkpoint
 from evdense.recon.config import ReconstructConfig, resolve_config
 from evdense.recon.inference import NetworkReconstructor, reconstruct_frames
 from evdense.recon.networks import E2VID, FireNet
@@ -84,6 +87,27 @@ def test_one_pass_equals_window_by_window_with_state_handed_on(stream, arch):
     # and the state matters: without it the frames differ
     fresh = np.stack([NetworkReconstructor(net)(v) for v in voxels])
     assert np.abs(fresh[1:] - one_pass[1:]).max() > 1e-3
+
+
+@pytest.mark.parametrize("arch", ["firenet", "e2vid"])
+def test_bfloat16_frames_stay_close_to_float32(stream, arch):
+    _, voxel_path = stream
+    with VoxelFile(voxel_path) as vf:
+        voxels = vf.read()
+    torch.manual_seed(1)
+    if arch == "firenet":  # our shipped weights
+        net = load_checkpoint(Path(__file__).parents[1] / "resources/weights/evfirenet.pt").net
+    else:
+        net = E2VID(base_channels=8).eval()
+    ref = NetworkReconstructor(copy.deepcopy(net)).run(voxels)
+    half = NetworkReconstructor(copy.deepcopy(net), precision="bfloat16")
+    assert next(half.net.parameters()).dtype == torch.bfloat16
+    out = half.run(voxels)
+    assert out.dtype == np.float32 and np.isfinite(out).all()
+    # bf16 keeps 8 bits of mantissa: a few grey levels, not drift, over the whole stream
+    assert np.abs(out - ref).max() < 0.02 and np.abs(out - ref).mean() < 0.004
+    with pytest.raises(ValueError, match="precision"):
+        NetworkReconstructor(net, precision="float16")
 
 
 def test_stage_writes_frames_and_resets_at_gaps(stream, tmp_path):

@@ -28,6 +28,8 @@ class ReconstructConfig:
     """Torch device for networks: cpu, cuda, or auto (cuda when available)."""
     channels_last: bool = True
     """Run networks in channels-last memory layout (faster on CPU with oneDNN)."""
+    precision: str = "float32"
+    """Number format of the network (float32 or bfloat16, faster on CPUs with bf16 instructions)."""
     auto_hdr: bool = False
     """Rescale network frames with a robust min/max smoothed over recent frames (always on for baselines)."""
     hdr_min_percentile: float = 1.0

@@ -60,6 +60,8 @@ class NetworkReconstructor:
         normalize: "auto" (the network's own input normalisation), "nonzero" or "none".
         device: torch device.
         channels_last: channels-last memory layout for the network's tensors.
+        precision: ``float32`` or ``bfloat16`` (weights, activations and recurrent state; the
+            input voxels are normalised in float32 first, the frame is returned as float32).
 
     ``rec(voxel)`` takes one voxel grid ``(B, H, W)`` (any float dtype, not modified) and
     returns the frame ``(H, W)`` float32 in [0, 1]; ``rec.states`` is the recurrent state
@@ -72,12 +74,17 @@ class NetworkReconstructor:
         normalize: str = "auto",
         device: str | torch.device = "cpu",
         channels_last: bool = True,
+        precision: str = "float32",
     ) -> None:
         if normalize not in ("auto", "nonzero", "none"):
             raise ValueError(f"normalize must be auto, nonzero or none, not {normalize!r}")
         self.device = torch.device(device)
         self.memory_format = torch.channels_last if channels_last else torch.contiguous_format
-        self.net = net.eval().to(self.device, memory_format=self.memory_format)
+        dtypes = {"float32": torch.float32, "bfloat16": torch.bfloat16}
+        if precision not in dtypes:
+            raise ValueError(f"precision must be float32 or bfloat16, not {precision!r}")
+        self.dtype = dtypes[precision]
+        self.net = net.eval().to(self.device, self.dtype, memory_format=self.memory_format)
         self.normalization = net.input_normalization if normalize == "auto" else normalize
         self.states: States | None = None
 
@@ -95,7 +102,7 @@ class NetworkReconstructor:
         x = x.to(self.device, copy=True)[None]
         if self.normalization == "nonzero":
             standardize_nonzero(x)
-        x = x.contiguous(memory_format=self.memory_format)
+        x = x.to(self.dtype).contiguous(memory_format=self.memory_format)
         img, self.states = self.net(x, self.states)
         if self.net.output_range == "clip":
             img = img.clamp_(0.0, 1.0)
@@ -149,11 +156,13 @@ def _network_frames(vox: VoxelFile, conf: ReconstructConfig) -> Iterator[tuple[i
             f"{vox.path}: voxel grids have {vox.bins} bins but {conf.checkpoint} "
             f"({ck.arch}) expects {ck.net.num_bins}"
         )
-    rec = NetworkReconstructor(ck.net, conf.normalize, pick_device(conf.device), conf.channels_last)
+    rec = NetworkReconstructor(
+        ck.net, conf.normalize, pick_device(conf.device), conf.channels_last, conf.precision
+    )
     log.info(
-        "%s: %s (%d parameters), %d windows of %dx%d, normalisation %s, device %s",
+        "%s: %s (%d parameters), %d windows of %dx%d, normalisation %s, device %s, %s",
         conf.method, ck.arch, ck.net.num_parameters(), vox.num_windows, vox.width, vox.height,
-        rec.normalization, rec.device,
+        rec.normalization, rec.device, conf.precision,
     )  # fmt: skip
     max_gap_us = conf.max_gap_s * 1e6
     resets = 0
