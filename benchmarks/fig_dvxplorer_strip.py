@@ -58,7 +58,7 @@ def main() -> None:
 
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
-        t0 = ingest_recording(recording, tmp / "events.h5").t_start_us * 1e-6
+        t_first = ingest_recording(recording, tmp / "events.h5").t_start_us * 1e-6
         make_windows(
             tmp / "events.h5", tmp / "windows.h5", WindowConfig(num_events=args.events_per_window)
         )
@@ -76,9 +76,8 @@ def main() -> None:
             pngs = sorted(out.glob("*.png"))
             ms = 1e3 * (time.perf_counter() - t0) / len(pngs)
             frames[name] = [np.asarray(Image.open(p), np.float32) / 255 for p in pngs]
-            times = [
-                float(ln.split()[1]) for ln in (out / "timestamps.txt").read_text().splitlines()
-            ]
+            lines = (out / "timestamps.txt").read_text().splitlines()
+            times = [float(ln.split()[1]) - t_first for ln in lines]  # from the first event
             contrast = np.mean([f.std() for f in frames[name][len(pngs) // 2 :]])
             print(
                 f"{name:<8} {len(pngs)} frames, {ms:.0f} ms/frame incl. I/O, mean std {contrast:.3f}"

@@ -71,7 +71,8 @@ def affine_align(pred: Tensor, target: Tensor, eps: float = 1e-4) -> Tensor:
     mt = target.mean(dims, keepdim=True)
     dp = pred - mp
     var = dp.square().mean(dims, keepdim=True)
-    a = (dp * (target - mt)).mean(dims, keepdim=True) / (var + eps**2)
+    # gain >= 0: an inverted frame is not the target up to a gain (the anchor term fixes the sign)
+    a = (dp * (target - mt)).mean(dims, keepdim=True).clamp_min(0) / (var + eps**2)
     return a * dp + mt
 
 

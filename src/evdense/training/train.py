@@ -66,7 +66,7 @@ class TrainConfig:
     """Consecutive windows per crop and step (from a zero recurrent state)."""
     tbptt_length: int = 8
     """Windows per backpropagation chunk (the state is detached between chunks)."""
-    max_steps: int = 1000
+    max_steps: int = 4000
     """Training steps (batches of sequences); the learning rate follows a cosine to this step."""
     lr: float = 2e-3
     """Peak learning rate of Adam."""
@@ -88,13 +88,13 @@ class TrainConfig:
     """Weight of a plain L1 on the raw output (keeps it in [0, 1] with ``loss_affine_invariant``)."""
     augment: bool = True
     """Random horizontal flips and polarity inversions."""
-    checkpoint_every: int = 25
+    checkpoint_every: int = 100
     """Steps between resumable checkpoints."""
     keep_checkpoints: int = 2
     """Resumable checkpoints kept (older ones are deleted)."""
-    val_every: int = 25
+    val_every: int = 100
     """Steps between validations (and best-weights saves)."""
-    log_every: int = 5
+    log_every: int = 20
     """Steps between loss lines in the log."""
     threads: int = 2
     """Torch CPU threads."""
