@@ -141,16 +141,20 @@ def test_supersampling_keeps_shape_depth_and_mean():
     assert Renderer(s2).supersample == 2
 
 
-def test_light_surfaces_scale_by_dynamic_range():
+def test_light_and_lit_surfaces_scale_by_dynamic_range():
     conf = {"render": {"camera": CAM}}
     a = load_scene({"scene": "room"}, conf)
     b = load_scene({"scene": "room", "dynamic_range": 1000.0}, conf)
     T = a.trajectory.pose(0.0)
     oa, ob = Renderer(a).render(T), Renderer(b).render(T)
     light = a.tri_light[oa.triangle_ids]
+    lit = a.tri_lit[oa.triangle_ids]
     assert light.mean() > 0.02  # the window is in view
-    np.testing.assert_allclose(ob.radiance[light], 1000.0 * oa.radiance[light], rtol=1e-5)
-    np.testing.assert_array_equal(ob.radiance[~light], oa.radiance[~light])
+    assert lit.mean() > 0.1  # so is the sunlit floor
+    bright = light | lit
+    np.testing.assert_allclose(ob.radiance[bright], 1000.0 * oa.radiance[bright], rtol=1e-5)
+    # everything else keeps its radiance
+    np.testing.assert_array_equal(ob.radiance[~bright], oa.radiance[~bright])
     # HDR: the brightest light is >= 10^4 times the darkest surface
     assert ob.radiance.max() / ob.radiance.min() > 1e4
 
