@@ -9,7 +9,9 @@ import pytest
 from evdense.events.container import EventFile, Events, EventWriter, write_events
 
 
-def random_events(rng: np.random.Generator, n: int, width: int = 64, height: int = 48, span_us: int = 50_000) -> Events:
+def random_events(
+    rng: np.random.Generator, n: int, width: int = 64, height: int = 48, span_us: int = 50_000
+) -> Events:
     t = np.sort(rng.integers(1_000_000, 1_000_000 + span_us, n))
     return Events(t, rng.integers(0, width, n), rng.integers(0, height, n), rng.choice([-1, 1], n))
 
@@ -31,7 +33,9 @@ def test_round_trip_in_several_appends(tmp_path, rng):
         assert f.t_start_us == ev.t[0] and f.t_end_us == ev.t[-1]
 
 
-@pytest.mark.parametrize("t_query", [0, 1_000_000, 1_000_001, 1_012_345, 1_049_999, 1_050_000, 2_000_000])
+@pytest.mark.parametrize(
+    "t_query", [0, 1_000_000, 1_000_001, 1_012_345, 1_049_999, 1_050_000, 2_000_000]
+)
 def test_index_at_matches_searchsorted(tmp_path, rng, t_query):
     ev = random_events(rng, 5_000)
     path = write_events(tmp_path / "ev.h5", ev, 64, 48)

@@ -28,7 +28,15 @@ def rules_in(workflow_text: str) -> set[str]:
 
 @pytest.mark.slow
 def test_tiny_config_runs_every_rule_down_to_the_report(tmp_path):
-    run = snakemake("--cores", "2", "--configfile", str(REPO / "config/test.yaml"), "-d", str(tmp_path), cwd=tmp_path)
+    run = snakemake(
+        "--cores",
+        "2",
+        "--configfile",
+        str(REPO / "config/test.yaml"),
+        "-d",
+        str(tmp_path),
+        cwd=tmp_path,
+    )
     assert run.returncode == 0, run.stderr[-3000:]
     log = run.stdout + run.stderr
     ran = set(re.findall(r"Finished jobid: \d+ \(Rule: (\w+)\)", log))
@@ -52,27 +60,37 @@ def test_tiny_config_runs_every_rule_down_to_the_report(tmp_path):
     assert (res / "summary" / "summary.md").read_text().startswith("# evdense run summary")
     assert list((res / "summary" / "figures").glob("*.png"))
 
-    report = snakemake("--report", "report.html", "--configfile", str(REPO / "config/test.yaml"), cwd=tmp_path)
+    report = snakemake(
+        "--report", "report.html", "--configfile", str(REPO / "config/test.yaml"), cwd=tmp_path
+    )
     assert report.returncode == 0, report.stderr[-3000:]
     assert (tmp_path / "report.html").stat().st_size > 10_000
 
     # Nothing reruns once everything is made.
-    again = snakemake("--cores", "2", "-n", "--configfile", str(REPO / "config/test.yaml"), cwd=tmp_path)
+    again = snakemake(
+        "--cores", "2", "-n", "--configfile", str(REPO / "config/test.yaml"), cwd=tmp_path
+    )
     assert again.returncode == 0 and "Nothing to be done" in again.stdout + again.stderr
 
 
 def test_slurm_profile_plans_the_full_sweep(tmp_path):
     pytest.importorskip("snakemake_executor_plugin_slurm")
     run = snakemake(
-        "-n", "--workflow-profile", str(REPO / "workflow/profiles/slurm"),
-        "--configfile", str(REPO / "config/experiment.yaml"), cwd=tmp_path,
+        "-n",
+        "--workflow-profile",
+        str(REPO / "workflow/profiles/slurm"),
+        "--configfile",
+        str(REPO / "config/experiment.yaml"),
+        cwd=tmp_path,
     )
     assert run.returncode == 0, run.stderr[-3000:]
     out = run.stdout + run.stderr
     total = int(re.search(r"^total\s+(\d+)", out, flags=re.M).group(1))
     sims = int(re.search(r"^simulate_events\s+(\d+)", out, flags=re.M).group(1))
     assert sims == 18  # 3 scenes x (4 speeds + 3 dynamic ranges - the shared speed 1 / range 1)
-    assert int(re.search(r"^run_sfm\s+(\d+)", out, flags=re.M).group(1)) == 18 * 3  # events, conventional, gt
+    assert (
+        int(re.search(r"^run_sfm\s+(\d+)", out, flags=re.M).group(1)) == 18 * 3
+    )  # events, conventional, gt
     assert total > 150
     assert not (tmp_path / "results").exists()
 

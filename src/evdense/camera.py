@@ -40,7 +40,9 @@ class Camera:
 
     def pixel_grid(self) -> tuple[np.ndarray, np.ndarray]:
         """Pixel centre coordinates ``(u, v)``, each ``(H, W)`` float64."""
-        return np.meshgrid(np.arange(self.width, dtype=np.float64), np.arange(self.height, dtype=np.float64))
+        return np.meshgrid(
+            np.arange(self.width, dtype=np.float64), np.arange(self.height, dtype=np.float64)
+        )
 
     def distort(self, xn: np.ndarray, yn: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Apply the distortion to normalised image coordinates (OpenCV model)."""
@@ -139,7 +141,9 @@ class Camera:
         if model in ("SIMPLE_RADIAL", "RADIAL"):
             k2 = p[4] if model == "RADIAL" else 0.0
             return cls(w, h, p[0], p[0], p[1] - 0.5, p[2] - 0.5, (p[3], k2, 0.0, 0.0))
-        raise ValueError(f"COLMAP camera model {model} is not supported (PINHOLE, OPENCV, SIMPLE_PINHOLE, SIMPLE_RADIAL, RADIAL)")
+        raise ValueError(
+            f"COLMAP camera model {model} is not supported (PINHOLE, OPENCV, SIMPLE_PINHOLE, SIMPLE_RADIAL, RADIAL)"
+        )
 
     def write_colmap_cameras_txt(self, path: str | Path, camera_id: int = 1) -> None:
         """Write a COLMAP ``cameras.txt`` holding this one camera."""
@@ -148,7 +152,9 @@ class Camera:
             "# Camera list with one line of data per camera:\n"
             "#   CAMERA_ID, MODEL, WIDTH, HEIGHT, PARAMS[]\n"
             f"# Number of cameras: 1\n"
-            f"{camera_id} {model} {self.width} {self.height} " + " ".join(f"{p:.10g}" for p in params) + "\n"
+            f"{camera_id} {model} {self.width} {self.height} "
+            + " ".join(f"{p:.10g}" for p in params)
+            + "\n"
         )
         Path(path).write_text(text)
 
@@ -190,8 +196,16 @@ def load_camera(path: str | Path) -> Camera:
         parts = line.split()
         if not parts or parts[0].startswith("#"):
             continue
-        if len(parts) >= 5 and parts[1] in ("PINHOLE", "SIMPLE_PINHOLE", "OPENCV", "SIMPLE_RADIAL", "RADIAL"):
-            return Camera.from_colmap(parts[1], int(parts[2]), int(parts[3]), [float(v) for v in parts[4:]])
+        if len(parts) >= 5 and parts[1] in (
+            "PINHOLE",
+            "SIMPLE_PINHOLE",
+            "OPENCV",
+            "SIMPLE_RADIAL",
+            "RADIAL",
+        ):
+            return Camera.from_colmap(
+                parts[1], int(parts[2]), int(parts[3]), [float(v) for v in parts[4:]]
+            )
         break
     raise ValueError(f"{path}: unrecognised calibration file")
 
@@ -200,6 +214,8 @@ def load_rpg_calib(path: str | Path, width: int, height: int) -> Camera:
     """Read an Event Camera Dataset ``calib.txt`` (one line: ``fx fy cx cy k1 k2 p1 p2 k3``)."""
     vals = [float(v) for v in Path(path).read_text().split()]
     if len(vals) < 4:
-        raise ValueError(f"{path}: expected 'fx fy cx cy [k1 k2 p1 p2 k3]', found {len(vals)} numbers")
+        raise ValueError(
+            f"{path}: expected 'fx fy cx cy [k1 k2 p1 p2 k3]', found {len(vals)} numbers"
+        )
     dist = tuple((vals[4:8] + [0.0] * 4)[:4])
     return Camera(width, height, vals[0], vals[1], vals[2], vals[3], dist)  # type: ignore[arg-type]

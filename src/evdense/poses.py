@@ -78,7 +78,9 @@ def read_tum(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
             continue
         parts = s.replace(",", " ").split()
         if len(parts) != 8:
-            raise ValueError(f"{path}:{i}: expected 8 numbers 't tx ty tz qx qy qz qw', found {len(parts)}")
+            raise ValueError(
+                f"{path}:{i}: expected 8 numbers 't tx ty tz qx qy qz qw', found {len(parts)}"
+            )
         rows.append([float(v) for v in parts])
     if not rows:
         raise ValueError(f"{path}: no poses")

@@ -794,8 +794,13 @@ def write_failed_sfm(out_dir: str | Path, error: SfmError) -> Path:
     if tmp.exists():
         shutil.rmtree(tmp)
     tmp.mkdir(parents=True)
-    stats = {"failed": True, "error": str(error), "num_registered": 0, "registered_fraction": 0.0,
-             "diagnostics": diagnostics}
+    stats = {
+        "failed": True,
+        "error": str(error),
+        "num_registered": 0,
+        "registered_fraction": 0.0,
+        "diagnostics": diagnostics,
+    }
     _write_json(tmp / "stats.json", stats)
     if out_dir.exists():
         shutil.rmtree(out_dir)

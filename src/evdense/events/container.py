@@ -162,7 +162,9 @@ class EventWriter:
             )
         bad_p = (events.p != 1) & (events.p != -1)
         if np.any(bad_p):
-            raise ValueError(f"{self.path}: polarity must be -1 or +1 (at event {self._n + int(np.argmax(bad_p))})")
+            raise ValueError(
+                f"{self.path}: polarity must be -1 or +1 (at event {self._n + int(np.argmax(bad_p))})"
+            )
         if self._t_offset is None:
             self._t_offset = int(t[0])
         if self._t_first is None:
@@ -175,7 +177,9 @@ class EventWriter:
         # the first event at or after the boundary can only be known once a later event exists.
         last_k = (int(t[-1]) - self._t_offset) // INDEX_STEP_US
         if last_k >= self._next_boundary:
-            bounds = self._t_offset + INDEX_STEP_US * np.arange(self._next_boundary, last_k + 1, dtype=np.int64)
+            bounds = self._t_offset + INDEX_STEP_US * np.arange(
+                self._next_boundary, last_k + 1, dtype=np.int64
+            )
             self._index.append(self._n + np.searchsorted(t, bounds, side="left"))
             self._next_boundary = last_k + 1
         self._n += n
@@ -327,7 +331,9 @@ class EventFile:
         """Events with ``t0_us <= t < t1_us``."""
         return self.read(self.index_at(t0_us), self.index_at(t1_us))
 
-    def iter_chunks(self, chunk_events: int = 1 << 21, start: int = 0, stop: int | None = None) -> Iterator[Events]:
+    def iter_chunks(
+        self, chunk_events: int = 1 << 21, start: int = 0, stop: int | None = None
+    ) -> Iterator[Events]:
         """Iterate over consecutive batches of at most ``chunk_events`` events."""
         stop = self.num_events if stop is None else min(stop, self.num_events)
         for s in range(start, stop, chunk_events):
