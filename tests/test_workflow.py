@@ -92,6 +92,9 @@ def test_slurm_profile_plans_the_full_sweep(tmp_path):
         int(re.search(r"^run_sfm\s+(\d+)", out, flags=re.M).group(1)) == 18 * 3
     )  # events, conventional, gt
     assert total > 150
+    # the sweep's table has its own place: it does not overwrite the default run's
+    assert "results/summary_experiment/metrics.csv" in out
+    assert "results/summary/metrics.csv" not in out
     assert not (tmp_path / "results").exists()
 
 

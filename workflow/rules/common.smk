@@ -24,6 +24,7 @@ def repo_relative(path):
 config["reconstruct"]["checkpoints"] = {
     k: repo_relative(v) for k, v in config["reconstruct"]["checkpoints"].items()
 }
+SUMMARY = config["summary_dir"].rstrip("/")
 SYNTHETIC = [name for name, ds in DATASETS.items() if "scene" in ds]
 RECORDINGS = [name for name, ds in DATASETS.items() if "recording" in ds]
 
@@ -54,9 +55,9 @@ def all_targets():
         targets += dataset_targets(name)
     if SYNTHETIC:
         targets += [
-            "results/summary/metrics.csv",
-            "results/summary/figures",
-            "results/summary/summary.md",
+            f"{SUMMARY}/metrics.csv",
+            f"{SUMMARY}/figures",
+            f"{SUMMARY}/summary.md",
         ]
     return targets
 

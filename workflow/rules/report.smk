@@ -10,49 +10,49 @@ rule gather_metrics:
         metrics=lambda w: all_metrics_files(),
     output:
         csv=report(
-            "results/summary/metrics.csv",
+            f"{SUMMARY}/metrics.csv",
             caption="../report/metrics_table.rst",
             category="Metrics",
         ),
-        md="results/summary/metrics.md",
+        md=f"{SUMMARY}/metrics.md",
     log:
-        "results/summary/logs/gather_metrics.log",
+        f"{SUMMARY}/logs/gather_metrics.log",
     benchmark:
-        "results/summary/benchmarks/gather_metrics.tsv"
+        f"{SUMMARY}/benchmarks/gather_metrics.tsv"
     script:
         "../scripts/gather_metrics.py"
 
 
 rule plot_figures:
     input:
-        csv="results/summary/metrics.csv",
+        csv=f"{SUMMARY}/metrics.csv",
     output:
         figures=report(
-            directory("results/summary/figures"),
+            directory(f"{SUMMARY}/figures"),
             patterns=["{name}.png"],
             caption="../report/figures.rst",
             category="Figures",
         ),
     log:
-        "results/summary/logs/plot_figures.log",
+        f"{SUMMARY}/logs/plot_figures.log",
     benchmark:
-        "results/summary/benchmarks/plot_figures.tsv"
+        f"{SUMMARY}/benchmarks/plot_figures.tsv"
     script:
         "../scripts/plot_figures.py"
 
 
 rule write_summary:
     input:
-        csv="results/summary/metrics.csv",
+        csv=f"{SUMMARY}/metrics.csv",
     output:
         md=report(
-            "results/summary/summary.md",
+            f"{SUMMARY}/summary.md",
             caption="../report/summary.rst",
             category="Summary",
         ),
-        config="results/summary/config.yaml",
+        config=f"{SUMMARY}/config.yaml",
     log:
-        "results/summary/logs/write_summary.log",
+        f"{SUMMARY}/logs/write_summary.log",
     params:
         config=lambda w: config,
     script:
