@@ -90,21 +90,10 @@ def read_image(path: str | Path) -> np.ndarray:
 
 
 def camera_from_colmap(cam) -> Camera:
-    """Our :class:`Camera` from a ``pycolmap.Camera`` (pinhole family; the dense workspace is undistorted)."""
-    p = np.asarray(cam.params, dtype=np.float64)
-    name = cam.model_name
-    if name == "PINHOLE":
-        return Camera(int(cam.width), int(cam.height), p[0], p[1], p[2], p[3])
-    if name == "SIMPLE_PINHOLE":
-        return Camera(int(cam.width), int(cam.height), p[0], p[0], p[1], p[2])
-    if name == "OPENCV":
-        return Camera(int(cam.width), int(cam.height), p[0], p[1], p[2], p[3], tuple(p[4:8]))
-    if name in ("SIMPLE_RADIAL", "RADIAL"):
-        k2 = p[4] if name == "RADIAL" else 0.0
-        return Camera(int(cam.width), int(cam.height), p[0], p[0], p[1], p[2], (p[3], k2, 0.0, 0.0))
-    raise ValueError(
-        f"camera model {name} is not supported (expected an undistorted PINHOLE camera)"
-    )
+    """Our :class:`Camera` from a ``pycolmap.Camera`` (pinhole family; the dense workspace is
+    undistorted). COLMAP's principal point is in its own pixel convention (top-left pixel centre
+    at 0.5, 0.5): it is shifted to ours by :meth:`Camera.from_colmap`."""
+    return Camera.from_colmap(cam.model_name, cam.width, cam.height, list(cam.params))
 
 
 def read_views(workspace: str | Path) -> Views:
