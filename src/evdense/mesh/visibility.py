@@ -56,17 +56,17 @@ class VisibilityConfig:
     """Lines of sight kept per point (a seeded random subset of the cameras that saw it)."""
     max_rays: int = 1_500_000
     """Lines of sight walked in all (a seeded random subset beyond this)."""
-    sigma: float = 1.0
+    sigma: float = 2.0
     """Soft-visibility distance, in median point spacings: facets crossed closer than this to the
     point cost little to cut (noise tolerance)."""
-    inside_distance: float = 1.5
+    inside_distance: float = 4.0
     """Distance behind a point, in median point spacings, of the cell that gets "inside" evidence."""
     quality_weight: float = 1.0
     """Weight of the facet-quality (empty-sphere angle) term, relative to one line of sight."""
-    max_face_distance: float = 5.0
+    max_face_distance: float = 8.0
     """Faces whose centroid is farther than this many median point spacings from every point are
     dropped (large faces spanning unobserved gaps, e.g. between stray points); 0 keeps them."""
-    unseen_weight: float = 0.5
+    unseen_weight: float = 0.1
     """"Inside" evidence of every cell that no line of sight crosses (unobserved space), relative
     to one line of sight."""
     box_margin: float = 0.2
