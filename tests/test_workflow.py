@@ -72,6 +72,20 @@ def test_tiny_config_runs_every_rule_down_to_the_report(tmp_path):
     )
     assert again.returncode == 0 and "Nothing to be done" in again.stdout + again.stderr
 
+    # A texture setting reruns texturing and what reads it, not meshing or refinement.
+    overlay = tmp_path / "texture.yaml"
+    overlay.write_text("mesh:\n  texture:\n    smoothness: 0.5\n")
+    plan = snakemake(
+        "-n",
+        "--configfile",
+        str(REPO / "config/test.yaml"),
+        str(overlay),
+        cwd=tmp_path,
+    )
+    planned = set(re.findall(r"^(?:local)?rule (\w+):", plan.stdout + plan.stderr, flags=re.M))
+    assert plan.returncode == 0 and "texture_mesh" in planned, plan.stdout[-2000:]
+    assert not planned & {"mesh_surface", "refine_mesh", "run_mvs"}
+
 
 def test_slurm_profile_plans_the_full_sweep(tmp_path):
     pytest.importorskip("snakemake_executor_plugin_slurm")

@@ -11,6 +11,12 @@ def mesh_dir(dataset, source, method=None):
     return f"results/{dataset}/mesh/{source}/{method or config['mesh']['method']}"
 
 
+def mesh_sections(*names):
+    """The sections of config `mesh` a rule reads: its params, so that changing another section
+    (say `mesh.texture`) does not rerun this rule."""
+    return {k: config["mesh"][k] for k in names}
+
+
 def mesh_product_names():
     """Names of the mesh products handed to the evaluation, in the order of mesh_products()."""
     return ["mesh", "refined", "textured"]
@@ -36,7 +42,7 @@ rule mesh_surface:
         method="poisson|visibility",
     threads: 2
     params:
-        conf=lambda w: config["mesh"],
+        conf=lambda w: mesh_sections("poisson", "visibility", "cleanup"),
     script:
         "../scripts/mesh_surface.py"
 
@@ -57,7 +63,7 @@ rule refine_mesh:
         method="poisson|visibility",
     threads: 2
     params:
-        conf=lambda w: config["mesh"],
+        conf=lambda w: mesh_sections("refine"),
     script:
         "../scripts/refine_mesh.py"
 
@@ -82,6 +88,6 @@ rule texture_mesh:
         method="poisson|visibility",
     threads: 2
     params:
-        conf=lambda w: config["mesh"],
+        conf=lambda w: mesh_sections("texture"),
     script:
         "../scripts/texture_mesh.py"
