@@ -89,13 +89,6 @@ def read_image(path: str | Path) -> np.ndarray:
     return img
 
 
-def camera_from_colmap(cam) -> Camera:
-    """Our :class:`Camera` from a ``pycolmap.Camera`` (pinhole family; the dense workspace is
-    undistorted). COLMAP's principal point is in its own pixel convention (top-left pixel centre
-    at 0.5, 0.5): it is shifted to ours by :meth:`Camera.from_colmap`."""
-    return Camera.from_colmap(cam.model_name, cam.width, cam.height, list(cam.params))
-
-
 def read_views(workspace: str | Path) -> Views:
     """Read the registered views of a dense workspace (``sparse/`` and ``images/``).
 
@@ -113,7 +106,8 @@ def read_views(workspace: str | Path) -> Views:
     cameras, poses, paths, names = [], [], [], []
     for image_id in rec.reg_image_ids():
         im = rec.images[image_id]
-        cameras.append(camera_from_colmap(rec.cameras[im.camera_id]))
+        cam = rec.cameras[im.camera_id]  # COLMAP's pixel convention, converted to ours
+        cameras.append(Camera.from_colmap(cam.model_name, cam.width, cam.height, list(cam.params)))
         T_cw = np.eye(4)
         T_cw[:3, :] = im.cam_from_world().matrix()
         poses.append(np.linalg.inv(T_cw))

@@ -22,6 +22,7 @@ import imageio.v3 as iio
 import numpy as np
 from scipy.sparse import csc_matrix
 
+from evdense.camera import Camera
 from evdense.log import get_logger
 from evdense.mvs.io import read_colmap_array
 from evdense.mvs.patchmatch import DepthNormalMap, StereoView
@@ -111,19 +112,13 @@ class Workspace:
 
 
 def _intrinsics(cam) -> np.ndarray:
-    """evdense ``K`` from an undistorted pycolmap camera (COLMAP centre convention shifted by 0.5)."""
-    p = np.asarray(cam.params, np.float64)
-    name = cam.model_name
-    if name == "PINHOLE":
-        fx, fy, cx, cy = p[:4]
-    elif name == "SIMPLE_PINHOLE":
-        fx = fy = p[0]
-        cx, cy = p[1], p[2]
-    else:
+    """evdense ``K`` from an undistorted pycolmap camera (COLMAP's pixel-centre convention
+    converted by :meth:`Camera.from_colmap`)."""
+    if cam.model_name not in ("PINHOLE", "SIMPLE_PINHOLE"):
         raise ValueError(
-            f"camera model {name} in a dense workspace (expected PINHOLE after undistortion)"
+            f"camera model {cam.model_name} in a dense workspace (expected PINHOLE after undistortion)"
         )
-    return np.array([[fx, 0, cx - 0.5], [0, fy, cy - 0.5], [0, 0, 1.0]])
+    return Camera.from_colmap(cam.model_name, cam.width, cam.height, list(cam.params)).K
 
 
 def read_workspace(root: str | Path) -> Workspace:
