@@ -12,6 +12,7 @@ from evdense.camera import load_camera
 from evdense.poses import read_tum
 from evdense.sim.groundtruth import (
     frame_timestamps,
+    gt_frame_times,
     render_gt_intensity,
     tonemap_log,
     write_groundtruth,
@@ -19,8 +20,11 @@ from evdense.sim.groundtruth import (
 from evdense.sim.scene import load_scene
 
 CAM = {"width": 64, "height": 48, "fx": 46.0, "fy": 46.0, "cx": 31.5, "cy": 23.5}
-SIM = {"render": {"camera": CAM}, "conventional_camera": {"fps": 10.0, "exposure_s": 0.01}}
 N = 10
+SIM = {
+    "render": {"camera": CAM, "gt_min_frames": N},  # the conventional camera takes exactly N
+    "conventional_camera": {"fps": 10.0, "exposure_s": 0.01},
+}
 FRAME_T = np.arange(N) / 10.0 + 0.005
 DATASET = {"scene": "room", "duration": 0.5, "speed": 0.5, "dynamic_range": 100.0, "seed": 3}
 
@@ -131,6 +135,7 @@ def test_render_gt_intensity_at_any_time(gt_dir):
         ),
         ({"scene": "room"}, {"render": {"camera": CAM}, "conventional_camera": {"fps": 0}}, "fps"),
         ({"scene": "room"}, {"render": {"camera": CAM, "supersample": 0}}, "supersample"),
+        ({"scene": "room"}, {"render": {"camera": CAM, "gt_min_frames": -1}}, "gt_min_frames"),
     ],
 )
 def test_invalid_config_writes_nothing(tmp_path, dataset, sim, key):
@@ -144,3 +149,16 @@ def test_frame_timestamps_and_tonemap():
     np.testing.assert_allclose(frame_timestamps(0.3, 20.0), [0, 0.05, 0.1, 0.15, 0.2, 0.25, 0.3])
     img = tonemap_log(np.array([1e-3, 1e-1, 10.0, 1e4], np.float32), 1e-2, 1e3)
     assert img.tolist() == [0, 51, 153, 255]
+
+
+def test_gt_frames_never_fewer_than_the_minimum():
+    # enough conventional frames: GT pairs with them one to one
+    t, fps = gt_frame_times(1.0, SIM, N)
+    np.testing.assert_allclose(t, FRAME_T)
+    assert fps == 10.0
+    # fast motion, the camera takes 10 frames but the oracle is owed 21: evenly spaced over 0..1 s
+    t, fps = gt_frame_times(1.0, SIM, 21)
+    np.testing.assert_allclose(t, np.arange(21) / 20.0)
+    assert fps == pytest.approx(20.0)
+    # 0 keeps the conventional times whatever their number
+    np.testing.assert_allclose(gt_frame_times(1.0, SIM, 0)[0], FRAME_T)

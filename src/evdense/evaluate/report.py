@@ -93,9 +93,9 @@ def claim_table(df: pd.DataFrame) -> pd.DataFrame:
 
     The claim holds when the best event source beats the conventional frames by
     :data:`CLAIM_MARGIN` and reaches :data:`CLAIM_ORACLE_FRACTION` of the oracle. The frames each
-    source gave to SfM are listed beside the scores: the oracle's GT frames sit at the
-    conventional camera's frame times, so at high speed it may have too few to reconstruct
-    anything, and ``note`` says so, since "85 % of the oracle" is then no test at all.
+    source gave to SfM are listed beside the scores. The simulator gives the oracle at least
+    ``simulator.render.gt_min_frames`` GT frames however fast the motion; where an oracle still
+    reconstructed nothing, ``note`` says so, since "85 % of the oracle" is then no test at all.
     """
     fcol = best_fscore_column(df)
     rows = []

@@ -3,7 +3,8 @@
 Contents: ``mesh.ply`` (world frame, metres), ``trajectory.txt`` (TUM, camera-to-world, sampled at
 ``simulator.render.gt_pose_rate_hz``), ``intrinsics.yaml`` and ``cameras.txt`` (COLMAP),
 ``frames/`` (sharp images at the conventional camera's frame timestamps, i.e. the middle of its
-exposures; 8-bit PNG, log tone-mapped, + ``timestamps.txt`` with lines ``index t_seconds``),
+exposures, or at ``simulator.render.gt_min_frames`` evenly spaced times when the conventional
+camera takes fewer, see :func:`gt_frame_times`; 8-bit PNG, log tone-mapped, + ``timestamps.txt`` with lines ``index t_seconds``),
 ``intensity.h5`` (``intensity`` ``(N, H, W)``
 float32 linear radiance, ``t`` ``(N,)`` seconds), ``depth.h5`` (``depth`` ``(N, H, W)`` float32
 z-depth in metres, 0 = no surface, ``t``), ``scene.json`` (the resolved scene, from which
@@ -57,6 +58,21 @@ def conventional_frame_times(duration_s: float, sim_conf: dict) -> tuple[np.ndar
     return times, float(conf.fps)
 
 
+def gt_frame_times(duration_s: float, sim_conf: dict, min_frames: int) -> tuple[np.ndarray, float]:
+    """Times (seconds) of the GT frames, the oracle's images, and their mean rate (Hz).
+
+    The conventional camera's frame times (so that GT and conventional frames pair one to one)
+    when it takes at least ``min_frames`` frames; otherwise ``min_frames`` times evenly spaced from
+    0 to ``duration_s``. Under fast motion a 20 Hz camera takes a handful of frames while the event
+    camera gives dozens of windows; an oracle limited to that handful is no upper bound.
+    """
+    times, fps = conventional_frame_times(duration_s, sim_conf)
+    if len(times) >= min_frames:
+        return times, fps
+    times = np.linspace(0.0, duration_s, min_frames)
+    return times, (min_frames - 1) / duration_s if duration_s > 0 else fps
+
+
 def tonemap_log(radiance: np.ndarray, lo: float, hi: float) -> np.ndarray:
     """8-bit log tone-mapping: ``log(radiance)`` from ``log(lo)`` .. ``log(hi)`` to 0 .. 255
     (clipped), so that an HDR scene keeps detail in both its dark and bright parts."""
@@ -70,14 +86,15 @@ def write_groundtruth(dataset_conf: dict, sim_conf: dict, out_dir: Path) -> None
 
     ``dataset_conf``: one entry of ``config["datasets"]``; ``sim_conf``: ``config["simulator"]``
     (reads ``render`` and ``conventional_camera``, whose frame rate, default 20 Hz, and exposure set
-    the frame timestamps, so that GT and conventional frames pair one to one). The folder is
+    the frame timestamps, so that GT and conventional frames pair one to one, unless the camera
+    takes fewer than ``render.gt_min_frames``: see :func:`gt_frame_times`). The folder is
     assembled under ``<out_dir>.partial`` and renamed at the end, so a failed run leaves no complete-looking output.
     Raises ``ValueError`` naming the key on a bad configuration, before anything is written.
     """
     out_dir = Path(out_dir)
     sim_conf = sim_conf or {}
     scene = load_scene(dataset_conf, sim_conf)
-    times, fps = conventional_frame_times(scene.trajectory.duration, sim_conf)
+    times, fps = gt_frame_times(scene.trajectory.duration, sim_conf, scene.render.gt_min_frames)
 
     tmp = out_dir.with_name(out_dir.name + ".partial")
     if tmp.exists():

@@ -52,6 +52,11 @@ class RenderConfig:
     """Sampling rate of the ground-truth trajectory file ``gt/trajectory.txt``, Hz."""
     gt_tonemap_percentiles: list[float] = field(default_factory=lambda: [0.1, 99.9])
     """Percentiles of log radiance (over all GT frames of a dataset) mapped to 0 and 255 in GT PNGs."""
+    gt_min_frames: int = 60
+    """Fewest GT frames (the oracle's images): GT frames are rendered at the conventional camera's
+    times, or at this many evenly spaced times when the conventional camera takes fewer (fast
+    motion), so that the oracle never sees fewer images than the event frames give SfM (0 = always
+    the conventional times)."""
 
     @classmethod
     def from_dict(cls, d: dict) -> RenderConfig:
@@ -82,6 +87,9 @@ class RenderConfig:
                 f"{key}.gt_tonemap_percentiles: need [low, high] with 0 <= low < high <= 100, got {p!r}"
             )
         conf.gt_tonemap_percentiles = [float(p[0]), float(p[1])]
+        m = conf.gt_min_frames
+        if isinstance(m, bool) or not isinstance(m, int) or m < 0:
+            raise ValueError(f"{key}.gt_min_frames: must be an integer >= 0, got {m!r}")
         conf.make_camera()  # validates the camera keys
         return conf
 
