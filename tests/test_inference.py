@@ -89,6 +89,29 @@ def test_one_pass_equals_window_by_window_with_state_handed_on(stream, arch):
     assert np.abs(fresh[1:] - one_pass[1:]).max() > 1e-3
 
 
+def test_voxel_clip_keeps_an_hdr_burst_from_drowning_the_texture(stream):
+    """A burst of 40 events per cell (an edge of 10^4 contrast passing) in one corner: uncapped, it
+    sets the normalisation's spread and the frames elsewhere change; capped, they barely do."""
+    _, voxel_path = stream
+    with VoxelFile(voxel_path) as vf:
+        voxels = vf.read()
+    burst = voxels.copy()
+    burst[:, 2, :6, :6] += 40.0
+    net = load_checkpoint(Path(__file__).parents[1] / "resources/weights/evfirenet.pt").net
+    plain = NetworkReconstructor(copy.deepcopy(net)).run(voxels)
+    uncapped = NetworkReconstructor(copy.deepcopy(net)).run(burst)
+    capped = NetworkReconstructor(copy.deepcopy(net), voxel_clip=2.0).run(burst)
+    # the cap is applied before anything else: the same as clipping the input by hand
+    by_hand = NetworkReconstructor(copy.deepcopy(net)).run(np.clip(burst, -2.0, 2.0))
+    np.testing.assert_array_equal(capped, by_hand)
+    far = (slice(None), slice(12, None), slice(12, None))  # away from the burst's corner
+    change_uncapped = np.abs(uncapped[far] - plain[far]).mean()
+    change_capped = np.abs(capped[far] - plain[far]).mean()
+    assert change_uncapped > 2.5 * change_capped
+    with pytest.raises(ValueError, match="voxel_clip"):
+        NetworkReconstructor(net, voxel_clip=-1.0)
+
+
 @pytest.mark.parametrize("arch", ["firenet", "e2vid"])
 def test_bfloat16_frames_stay_close_to_float32(stream, arch):
     _, voxel_path = stream
@@ -130,13 +153,13 @@ def test_stage_writes_frames_and_resets_at_gaps(stream, tmp_path):
     # expected: the state is carried, except across the 1 s gap where it starts again
     gap = int(np.argmax(t_start[1:] - t_end[:-1] > 500_000)) + 1
     assert gap == 4
-    rec = NetworkReconstructor(net)
+    rec = NetworkReconstructor(net, voxel_clip=conf.voxel_clip)  # the stage caps voxels at 3
     for k, v in enumerate(voxels):
         if k == gap:
             rec.reset()
         np.testing.assert_array_equal(frames[k], to_uint8(rec(v)), err_msg=f"frame {k}")
     # without the reset the frame after the gap would differ
-    carried = NetworkReconstructor(net).run(voxels)
+    carried = NetworkReconstructor(net, voxel_clip=conf.voxel_clip).run(voxels)
     assert np.abs(to_uint8(carried[gap]).astype(int) - frames[gap]).max() > 0
 
 

@@ -62,6 +62,8 @@ class NetworkReconstructor:
         channels_last: channels-last memory layout for the network's tensors.
         precision: ``float32`` or ``bfloat16`` (weights, activations and recurrent state; the
             input voxels are normalised in float32 first, the frame is returned as float32).
+        voxel_clip: cap on ``|voxel|`` (signed events per cell) applied before the
+            normalisation; 0 = none. See ``ReconstructConfig.voxel_clip``.
 
     ``rec(voxel)`` takes one voxel grid ``(B, H, W)`` (any float dtype, not modified) and
     returns the frame ``(H, W)`` float32 in [0, 1]; ``rec.states`` is the recurrent state
@@ -75,7 +77,11 @@ class NetworkReconstructor:
         device: str | torch.device = "cpu",
         channels_last: bool = True,
         precision: str = "float32",
+        voxel_clip: float = 0.0,
     ) -> None:
+        if not voxel_clip >= 0:
+            raise ValueError(f"voxel_clip must be >= 0 (0 = off), not {voxel_clip!r}")
+        self.voxel_clip = float(voxel_clip)
         if normalize not in ("auto", "nonzero", "none"):
             raise ValueError(f"normalize must be auto, nonzero or none, not {normalize!r}")
         self.device = torch.device(device)
@@ -100,6 +106,8 @@ class NetworkReconstructor:
                 f"expected a voxel grid (B={self.net.num_bins}, H, W), got shape {tuple(x.shape)}"
             )
         x = x.to(self.device, copy=True)[None]
+        if self.voxel_clip > 0:
+            x.clamp_(-self.voxel_clip, self.voxel_clip)
         if self.normalization == "nonzero":
             standardize_nonzero(x)
         x = x.to(self.dtype).contiguous(memory_format=self.memory_format)
@@ -157,12 +165,17 @@ def _network_frames(vox: VoxelFile, conf: ReconstructConfig) -> Iterator[tuple[i
             f"({ck.arch}) expects {ck.net.num_bins}"
         )
     rec = NetworkReconstructor(
-        ck.net, conf.normalize, pick_device(conf.device), conf.channels_last, conf.precision
+        ck.net,
+        conf.normalize,
+        pick_device(conf.device),
+        conf.channels_last,
+        conf.precision,
+        conf.voxel_clip,
     )
     log.info(
-        "%s: %s (%d parameters), %d windows of %dx%d, normalisation %s, device %s, %s",
+        "%s: %s (%d parameters), %d windows of %dx%d, voxel clip %s, normalisation %s, device %s, %s",
         conf.method, ck.arch, ck.net.num_parameters(), vox.num_windows, vox.width, vox.height,
-        rec.normalization, rec.device, conf.precision,
+        conf.voxel_clip or "off", rec.normalization, rec.device, conf.precision,
     )  # fmt: skip
     max_gap_us = conf.max_gap_s * 1e6
     resets = 0
