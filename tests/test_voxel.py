@@ -12,6 +12,7 @@ from evdense.events.voxel import (
     HAVE_NUMBA,
     VoxelConfig,
     VoxelFile,
+    find_hot_pixels,
     make_voxels,
     normalize_voxel,
     voxel_grid,
@@ -218,9 +219,12 @@ def test_real_recording_windows_and_voxels(anchors, tmp_path):
     events = tmp_path / "events.h5"
     ingest.ingest_recording(anchors / "data" / "dvxplorer_sample.aedat4", events)
     wpath = make_windows(events, tmp_path / "windows_n15000.h5", WindowConfig(num_events=15000))
-    out = make_voxels(events, wpath, tmp_path / "voxels_n15000_b5.h5", VoxelConfig())
+    out = make_voxels(
+        events, wpath, tmp_path / "voxels_n15000_b5.h5", VoxelConfig(hot_pixel_factor=0)
+    )
     with VoxelFile(out) as vf, EventFile(events) as ef:
         assert (vf.width, vf.height, len(vf)) == (320, 240, 8)
+        assert vf.hot_pixels.shape == (0, 2)
         assert vf.count.sum() == ef.num_events == 111_954
         for k in (0, len(vf) - 1):
             e = ef.read(int(vf.i0[k]), int(vf.i1[k]))
@@ -232,3 +236,34 @@ def test_real_recording_windows_and_voxels(anchors, tmp_path):
             assert g.sum() == pytest.approx(float(e.p.sum()), abs=1e-2)
             # first and last events sit entirely in the first and last bins
             assert g[0, e.y[0], e.x[0]] != 0 and g[-1, e.y[-1], e.x[-1]] != 0
+
+    # the hot-pixel filter (on by default) masks this sensor's few dozen hot pixels and nothing else
+    filtered = make_voxels(events, wpath, tmp_path / "filtered.h5", VoxelConfig())
+    with VoxelFile(out) as vf, VoxelFile(filtered) as hf, EventFile(events) as ef:
+        hot = hf.hot_pixels
+        assert 40 <= len(hot) <= 120  # 66 with the defaults
+        a, b = vf.read(), hf.read()
+        mask = np.zeros((240, 320), bool)
+        mask[hot[:, 1], hot[:, 0]] = True
+        assert not b[:, :, mask].any()
+        np.testing.assert_array_equal(a[:, :, ~mask], b[:, :, ~mask])
+        ev = ef.read(0, ef.num_events)
+        counts = np.bincount(ev.y.astype(int) * 320 + ev.x, minlength=320 * 240)
+        assert mask.ravel()[np.argsort(counts)[::-1][:20]].all()  # the 20 busiest pixels are hot
+
+
+def test_hot_pixels_stand_alone_signal_does_not():
+    rng = np.random.default_rng(0)
+    counts = rng.poisson(8.0, (40, 50))  # texture seen by a moving camera
+    counts[:, 20] = 400  # a one-pixel line that fires a lot (a flickering wire): signal
+    counts[10:14, 30:34] = 300  # a small bright blob: signal
+    hot = [(5, 5), (30, 40), (20, 8), (20, 9)]  # two alone, and an adjacent pair
+    for y, x in hot:
+        counts[y, x] = 250
+    found = find_hot_pixels(counts, factor=10.0, min_ratio=3.0)
+    assert sorted(found.tolist()) == sorted(y * 50 + x for y, x in hot)
+    assert len(find_hot_pixels(counts, factor=0.0, min_ratio=3.0)) == 0
+    # a quiet recording: a pixel with 3 events among pixels with 0 or 1 is not "hot"
+    quiet = (rng.random((40, 50)) < 0.05).astype(int)
+    quiet[7, 7] = 3
+    assert len(find_hot_pixels(quiet, factor=2.0, min_ratio=3.0)) == 0

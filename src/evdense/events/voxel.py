@@ -55,6 +55,14 @@ class VoxelConfig:
     """HDF5 compression of the stored grids (``blosc-lz4``, ``zstd``, ``lzf``, ``gzip`` or ``none``)."""
     read_block_events: int = 1 << 22
     """Events read from the event file at a time; bounds memory (13 bytes per event)."""
+    hot_pixel_factor: float = 10.0
+    """Hot-pixel filter: a pixel that fired, over the whole recording, more than this many times
+    the second largest count of its 8 neighbours (taken as at least 1) is masked, zero in every grid;
+    0 = keep every pixel. A real sensor's hot pixels fire hundreds of times where their
+    neighbours fire a few; the network renders each as a dot that spreads into a ring."""
+    hot_pixel_min_ratio: float = 3.0
+    """...and only if its count also exceeds this many times the mean count of the pixels that
+    fired (so that a quiet recording's scattered events are not taken for hot pixels)."""
 
     def __post_init__(self) -> None:
         if self.bins < 1:
@@ -64,6 +72,11 @@ class VoxelConfig:
         compression_options(self.compression)  # raises ValueError on an unknown name
         if self.read_block_events < 1:
             raise ValueError("voxel read_block_events must be >= 1")
+        if not (self.hot_pixel_factor >= 0 and self.hot_pixel_min_ratio >= 0):
+            raise ValueError(
+                "voxel hot_pixel_factor and hot_pixel_min_ratio must be >= 0, got "
+                f"{self.hot_pixel_factor}, {self.hot_pixel_min_ratio}"
+            )
 
 
 # ---------------------------------------------------------------------------------------------
@@ -363,6 +376,44 @@ class _EventBuffer:
         return self.ev[i0 - self.start : i1 - self.start]
 
 
+def events_per_pixel(ef: EventFile, block: int = 1 << 22) -> np.ndarray:
+    """Number of events of every pixel over the whole file, ``(height, width)`` int64."""
+    n = ef.height * ef.width
+    counts = np.zeros(n, np.int64)
+    for a in range(0, ef.num_events, block):
+        ev = ef.read(a, min(a + block, ef.num_events))
+        counts += np.bincount(ev.y.astype(np.int64) * ef.width + ev.x.astype(np.int64), minlength=n)
+    return counts.reshape(ef.height, ef.width)
+
+
+def find_hot_pixels(counts: np.ndarray, factor: float, min_ratio: float) -> np.ndarray:
+    """Flat indices (``y * width + x``, sorted) of the hot pixels of a count image ``(H, W)``.
+
+    Hot: more than ``factor`` times the second largest count of its 8 neighbours (at least 1),
+    and more than ``min_ratio`` times the mean count of the pixels with any event. Moving edges
+    and texture fire in runs of neighbouring pixels (a one-pixel line still has two neighbours
+    on it), so real signal keeps its neighbours' order of magnitude; a hot pixel, or a pair of
+    them, stands alone. ``factor`` 0 finds none.
+    """
+    counts = np.asarray(counts, np.int64)
+    if factor <= 0 or not counts.any():
+        return np.zeros(0, np.int64)
+    h, w = counts.shape
+    padded = np.pad(counts, 1, mode="edge")
+    around = np.stack(
+        [
+            padded[1 + dy : 1 + dy + h, 1 + dx : 1 + dx + w]
+            for dy in (-1, 0, 1)
+            for dx in (-1, 0, 1)
+            if dy or dx
+        ]
+    )
+    second = np.partition(around, 6, axis=0)[6]  # second largest of the 8 neighbours
+    mean_active = counts[counts > 0].mean()
+    hot = (counts > factor * np.maximum(second, 1)) & (counts > min_ratio * mean_active)
+    return np.flatnonzero(hot)
+
+
 def _window_voxels(
     buf: _EventBuffer, i0: int, i1: int, bins: int, height: int, width: int, out: np.ndarray
 ) -> None:
@@ -388,7 +439,8 @@ def make_voxels(
 
     Layout of ``out_path``: ``voxels`` ``(num_windows, bins, height, width)`` RAW grids (``conf.dtype``,
     one chunk per window, compressed); ``t_start_us``, ``t_end_us``, ``count``, ``i0``, ``i1`` copied
-    from the windows table; attrs ``format``, ``version``, ``width``, ``height``, ``bins``, ``spec``,
+    from the windows table; ``hot_pixels`` ``(K, 2)`` int32 ``x, y`` of the pixels masked by the
+    hot-pixel filter (:func:`find_hot_pixels`; zero in every grid); attrs ``format``, ``version``, ``width``, ``height``, ``bins``, ``spec``,
     ``normalized`` (False), ``time_unit`` ("us"), ``source``, ``windows``. Memory stays bounded by
     ``conf.read_block_events`` and a few grids, however long the recording. Written under a
     temporary name and renamed when complete.
@@ -404,6 +456,14 @@ def make_voxels(
             )
         h, w = ef.height, ef.width
         nw = len(windows)
+        hot = np.zeros(0, np.int64)
+        if conf.hot_pixel_factor > 0:
+            counts = events_per_pixel(ef, conf.read_block_events)
+            hot = find_hot_pixels(counts, conf.hot_pixel_factor, conf.hot_pixel_min_ratio)
+            log.info(
+                "%s: %d hot pixels masked (%d of %d events)",
+                events_path, len(hot), int(counts.ravel()[hot].sum()), ef.num_events,
+            )  # fmt: skip
         grid_bytes = bins * h * w * 4
         per_write = int(max(1, min(64, (32 << 20) // grid_bytes)))
         out_path.parent.mkdir(parents=True, exist_ok=True)
@@ -421,6 +481,9 @@ def make_voxels(
                 for k in ("i0", "i1", "t_start_us", "t_end_us"):
                     f.create_dataset(k, data=getattr(windows, k))
                 f.create_dataset("count", data=windows.count)
+                f.create_dataset(
+                    "hot_pixels", data=np.stack([hot % w, hot // w], 1).astype(np.int32)
+                )  # (K, 2) x, y of the masked pixels
                 buf = _EventBuffer(ef, conf.read_block_events)
                 grids = np.zeros((per_write, bins, h, w), np.float32)
                 starts = range(0, nw, per_write)
@@ -431,6 +494,8 @@ def make_voxels(
                         _window_voxels(
                             buf, int(windows.i0[k]), int(windows.i1[k]), bins, h, w, grids[k - s]
                         )
+                    if len(hot):
+                        grids[: e - s].reshape(e - s, bins, h * w)[:, :, hot] = 0.0
                     ds[s:e] = grids[: e - s]
                 a = f.attrs
                 a["format"] = VOXELS_FORMAT
@@ -464,8 +529,9 @@ class VoxelFile:
     """Read a voxel file written by :func:`make_voxels`, window by window or in blocks.
 
     Attributes: ``num_windows``, ``bins``, ``height``, ``width``, ``spec``, ``normalized`` (False
-    for files of :func:`make_voxels`), and int64 arrays ``t_start_us``, ``t_end_us``, ``count``,
-    ``i0``, ``i1`` (microseconds / event indices, one entry per window).
+    for files of :func:`make_voxels`), int64 arrays ``t_start_us``, ``t_end_us``, ``count``,
+    ``i0``, ``i1`` (microseconds / event indices, one entry per window), and ``hot_pixels``
+    ``(K, 2)`` (``x, y`` of the pixels the hot-pixel filter masked).
     """
 
     def __init__(self, path: str | Path) -> None:
@@ -486,6 +552,9 @@ class VoxelFile:
         self._ds = self._f["voxels"]
         for k in ("t_start_us", "t_end_us", "count", "i0", "i1"):
             setattr(self, k, self._f[k][()])
+        # x, y of the masked hot pixels (K, 2); files made before the filter have none
+        hp = self._f.get("hot_pixels")
+        self.hot_pixels = hp[()] if hp is not None else np.zeros((0, 2), np.int32)
 
     def __enter__(self) -> VoxelFile:
         return self
