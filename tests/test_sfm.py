@@ -40,7 +40,8 @@ def desk_gt(tmp_path_factory) -> Path:
     cfg = validate_config(
         {
             "datasets": {"desk": {"scene": "desk", "speed": 4}},
-            "simulator": {"render": {"camera": dict(SMALL_CAMERA)}},
+            # the camera's 20 frames, not the oracle's minimum of 60
+            "simulator": {"render": {"camera": dict(SMALL_CAMERA), "gt_min_frames": 0}},
         }
     )
     out = tmp_path_factory.mktemp("desk") / "gt"
