@@ -296,3 +296,24 @@ def test_missing_frame_raises_before_any_map(tmp_path):
     with pytest.raises(ValueError, match="000002.png"):
         undistort_to_workspace(tmp_path / "sparse", frames, tmp_path / "ws")
     assert not (tmp_path / "ws" / "sparse").exists()
+
+
+def test_a_workspace_made_from_other_inputs_is_not_resumed(tmp_path):
+    from evdense.mvs.stage import MVSConfig, discard_stale_workspace, input_fingerprint
+
+    sparse, images, out = tmp_path / "sparse", tmp_path / "frames", tmp_path / "mvs"
+    sparse.mkdir()
+    images.mkdir()
+    (sparse / "images.bin").write_bytes(b"model A")
+    (images / "000000.png").write_bytes(b"frame A")
+    fp_a = input_fingerprint(sparse, images, MVSConfig())
+    assert not discard_stale_workspace(out, fp_a)  # empty: nothing to discard
+    (out / "stereo").mkdir()
+    (out / "stereo" / "map.bin").write_bytes(b"depth of A")
+    assert not discard_stale_workspace(out, fp_a)  # same inputs: resumed, maps kept
+    assert (out / "stereo" / "map.bin").is_file()
+    (images / "000000.png").write_bytes(b"frame B")  # the frames were reconstructed anew
+    fp_b = input_fingerprint(sparse, images, MVSConfig())
+    assert fp_b != fp_a
+    assert discard_stale_workspace(out, fp_b)
+    assert not (out / "stereo").exists()

@@ -22,6 +22,7 @@ import json
 import logging
 import multiprocessing
 import os
+import shutil
 import time
 from collections import OrderedDict
 from concurrent.futures import ProcessPoolExecutor, as_completed
@@ -372,6 +373,37 @@ def run_mvs(
         torch.set_num_threads(torch_threads)
 
 
+def input_fingerprint(sparse_dir: Path, image_dir: Path, cfg: MVSConfig) -> str:
+    """SHA-1 over the sparse model's files, the images' bytes and the MVS config: what the
+    workspace's maps were computed from."""
+    import hashlib
+
+    h = hashlib.sha1(repr(cfg).encode())
+    for p in sorted(Path(sparse_dir).glob("*")) + sorted(Path(image_dir).glob("*.png")):
+        if p.is_file():
+            h.update(p.name.encode())
+            h.update(p.read_bytes())
+    return h.hexdigest()
+
+
+def discard_stale_workspace(out_dir: Path, fingerprint: str) -> bool:
+    """Remove the undistorted images and maps of ``out_dir`` when they were made from other
+    inputs (another fingerprint, or none recorded); True when something was removed. Resuming
+    must only ever reuse maps of the same inputs."""
+    stamp = out_dir / "inputs.sha1"
+    parts = [out_dir / n for n in ("images", "sparse", "stereo")]
+    if stamp.is_file() and stamp.read_text().strip() == fingerprint:
+        return False
+    stale = [p for p in parts if p.exists()]
+    for p in stale:
+        shutil.rmtree(p)
+    if stale:
+        log.info("%s: workspace made from other inputs; discarded", out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    stamp.write_text(fingerprint + "\n")
+    return bool(stale)
+
+
 def _run_mvs(
     sparse_dir: str | Path,
     image_dir: str | Path,
@@ -382,6 +414,7 @@ def _run_mvs(
     """:func:`run_mvs` once its config is resolved and torch's threads are set."""
     out_dir = Path(out_dir)
     t0 = time.perf_counter()
+    discard_stale_workspace(out_dir, input_fingerprint(Path(sparse_dir), Path(image_dir), cfg))
     ws = undistort_to_workspace(sparse_dir, image_dir, out_dir, cfg.max_image_size)
     t_undistort = time.perf_counter() - t0
     compute_depth_maps(ws, cfg, workers=threads or 1)
