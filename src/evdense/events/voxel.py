@@ -380,8 +380,7 @@ def events_per_pixel(ef: EventFile, block: int = 1 << 22) -> np.ndarray:
     """Number of events of every pixel over the whole file, ``(height, width)`` int64."""
     n = ef.height * ef.width
     counts = np.zeros(n, np.int64)
-    for a in range(0, ef.num_events, block):
-        ev = ef.read(a, min(a + block, ef.num_events))
+    for ev in ef.iter_chunks(block):
         counts += np.bincount(ev.y.astype(np.int64) * ef.width + ev.x.astype(np.int64), minlength=n)
     return counts.reshape(ef.height, ef.width)
 
@@ -440,8 +439,8 @@ def make_voxels(
     Layout of ``out_path``: ``voxels`` ``(num_windows, bins, height, width)`` RAW grids (``conf.dtype``,
     one chunk per window, compressed); ``t_start_us``, ``t_end_us``, ``count``, ``i0``, ``i1`` copied
     from the windows table; ``hot_pixels`` ``(K, 2)`` int32 ``x, y`` of the pixels masked by the
-    hot-pixel filter (:func:`find_hot_pixels`; zero in every grid); attrs ``format``, ``version``, ``width``, ``height``, ``bins``, ``spec``,
-    ``normalized`` (False), ``time_unit`` ("us"), ``source``, ``windows``. Memory stays bounded by
+    hot-pixel filter (:func:`find_hot_pixels`; zero in every grid); attrs ``format``,
+    ``version``, ``width``, ``height``, ``bins``, ``spec``, ``normalized`` (False), ``time_unit`` ("us"), ``source``, ``windows``. Memory stays bounded by
     ``conf.read_block_events`` and a few grids, however long the recording. Written under a
     temporary name and renamed when complete.
     """

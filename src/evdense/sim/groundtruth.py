@@ -4,7 +4,8 @@ Contents: ``mesh.ply`` (world frame, metres), ``trajectory.txt`` (TUM, camera-to
 ``simulator.render.gt_pose_rate_hz``), ``intrinsics.yaml`` and ``cameras.txt`` (COLMAP),
 ``frames/`` (sharp images at the conventional camera's frame timestamps, i.e. the middle of its
 exposures, or at ``simulator.render.gt_min_frames`` evenly spaced times when the conventional
-camera takes fewer, see :func:`gt_frame_times`; 8-bit PNG, log tone-mapped, + ``timestamps.txt`` with lines ``index t_seconds``),
+camera takes fewer, see :func:`gt_frame_times`; 8-bit PNG, log tone-mapped, + ``timestamps.txt``
+with lines ``index t_seconds``),
 ``intensity.h5`` (``intensity`` ``(N, H, W)``
 float32 linear radiance, ``t`` ``(N,)`` seconds), ``depth.h5`` (``depth`` ``(N, H, W)`` float32
 z-depth in metres, 0 = no surface, ``t``), ``scene.json`` (the resolved scene, from which
