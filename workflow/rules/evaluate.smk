@@ -24,7 +24,7 @@ rule evaluate_source:
         "results/{dataset}/benchmarks/evaluate_source/{source}.tsv"
     wildcard_constraints:
         dataset=names_regex(SYNTHETIC),
-    threads: 2
+    threads: 1
     params:
         conf=lambda w: config["evaluate"],
         labels=lambda w: run_labels(w.dataset, w.source),

@@ -40,7 +40,7 @@ rule mesh_surface:
     wildcard_constraints:
         source=r"[^/]+",
         method="poisson|visibility",
-    threads: 2
+    threads: 1
     params:
         conf=lambda w: mesh_sections("poisson", "visibility", "cleanup"),
     script:
@@ -61,7 +61,7 @@ rule refine_mesh:
     wildcard_constraints:
         source=r"[^/]+",
         method="poisson|visibility",
-    threads: 2
+    threads: 1
     params:
         conf=lambda w: mesh_sections("refine"),
     script:
@@ -86,7 +86,7 @@ rule texture_mesh:
     wildcard_constraints:
         source=r"[^/]+",
         method="poisson|visibility",
-    threads: 2
+    threads: 1
     params:
         conf=lambda w: mesh_sections("texture"),
     script:
