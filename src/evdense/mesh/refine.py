@@ -5,7 +5,8 @@ the surface: the point ``x`` where its ray meets the plane of the face it hits (
 function of that face's vertices), and ``x`` is reprojected into view ``j``. The image of ``j``
 sampled there (``grid_sample``) is compared with image ``i`` by ZNCC over small windows of ``i``'s
 pixel grid; the loss is the mean ``1 - ZNCC`` over textured, fully visible windows, plus a
-Laplacian (umbrella) regulariser. Vertices move along their normals (one unknown each), with Adam,
+Laplacian (umbrella) regulariser of the displacement from the input mesh (by default; or of the
+surface itself). Vertices move along their normals (one unknown each), with Adam,
 coarse to fine over an image pyramid. Which face each pixel hits, and which reprojections are
 visible in ``j`` (ray casting with open3d), is refreshed every few iterations.
 
@@ -54,6 +55,10 @@ class RefineConfig:
     """Windows of the reference image with a smaller intensity standard deviation are ignored (textureless)."""
     laplacian_weight: float = 0.5
     """Weight of the squared umbrella Laplacian (in mean edge lengths) against the mean 1 - ZNCC."""
+    regularizer: str = "displacement"
+    """What the Laplacian smooths: ``displacement`` (the move from the input mesh: a surface
+    with no photometric evidence stays where it is, corners included) or ``surface`` (the
+    vertices themselves: also smooths the input's noise, and rounds its corners and edges)."""
     step: float = 0.05
     """Adam learning rate, in mean edge lengths per iteration."""
     pairs_per_view: int = 2
@@ -283,6 +288,10 @@ def _refine(
     if len(views) > config.max_views:
         keep = np.unique(np.linspace(0, len(views) - 1, config.max_views).round().astype(int))
         views = views.subset(keep)
+    if config.regularizer not in ("displacement", "surface"):
+        raise ValueError(
+            f"refine.regularizer must be displacement or surface, not {config.regularizer!r}"
+        )
     pairs = select_pairs(views, vertices.mean(axis=0), config)
     if not pairs:
         log.warning("refinement: no view pair with a usable baseline; mesh unchanged")
@@ -291,6 +300,8 @@ def _refine(
     edge_len = float(np.mean(np.linalg.norm(vertices[e[:, 0]] - vertices[e[:, 1]], axis=1)))
     F_t = torch.from_numpy(faces)
     L = _laplacian(len(vertices), faces)
+    # The Laplacian of what is regularised is taken relative to this (zero for "surface").
+    anchor = torch.from_numpy(vertices if config.regularizer == "displacement" else 0 * vertices)
     rng = np.random.default_rng(config.seed)
 
     full = _Level(views, pairs, 1.0, config)
@@ -327,7 +338,7 @@ def _refine(
             if not losses:
                 continue
             data = torch.stack(losses).mean()
-            lap = torch.sparse.mm(L, V)
+            lap = torch.sparse.mm(L, V - anchor)
             reg = (lap * lap).sum(1).mean() / (edge_len * edge_len)
             loss = data + config.laplacian_weight * reg
             opt.zero_grad()
