@@ -13,7 +13,7 @@ rule simulate_groundtruth:
         "results/{dataset}/benchmarks/simulate_groundtruth.tsv"
     wildcard_constraints:
         dataset=names_regex(SYNTHETIC),
-    threads: 2
+    threads: 1
     params:
         dataset=dataset_conf,
         simulator=sim_conf,
@@ -34,7 +34,7 @@ rule simulate_events:
         "results/{dataset}/benchmarks/simulate_events.tsv"
     wildcard_constraints:
         dataset=names_regex(SYNTHETIC),
-    threads: 2
+    threads: 1
     params:
         dataset=dataset_conf,
         simulator=sim_conf,
@@ -51,7 +51,7 @@ rule simulate_conventional:
         "results/{dataset}/benchmarks/simulate_conventional.tsv"
     wildcard_constraints:
         dataset=names_regex(SYNTHETIC),
-    threads: 2
+    threads: 1
     params:
         dataset=dataset_conf,
         simulator=sim_conf,
