@@ -112,6 +112,10 @@ def test_icp_keeps_a_correction_that_loses_a_few_far_points():
     )
     H, info = refine_with_icp(pts, box, 0.06)
     assert np.abs(H - np.eye(4)).max() < 2e-3  # in place: identity, or a correction below noise
+    # On a random tenth of the cloud: the same correction.
+    H, info = refine_with_icp(pts + [0, 0, 0.03], box, 0.06, max_points=2000)
+    assert info["num_points"] == 2000 and info["accepted"]
+    np.testing.assert_allclose(H[:3, 3], [0, 0, -0.03], atol=3e-3)
 
 
 def test_sim3_copy_aligns_back_to_zero(rng):
