@@ -19,6 +19,10 @@ if not config:
 validate_config(config, workflow.source_path("workflow/schemas/config.schema.yaml"))
 
 
+# Scheduling: the rules up to MVS (simulation, windows, voxels, frames, SfM, MVS; SfM, MVS and
+# the network take two threads) have priority 1, the one-thread mesh and evaluation rules 0. With
+# two cores, every two-thread job then runs as soon as it can, and the one-thread jobs pair up
+# behind them instead of leaving a core idle beside a lone one (room_fast: see docs/benchmarks.md).
 include: "workflow/rules/common.smk"
 include: "workflow/rules/simulate.smk"
 include: "workflow/rules/ingest.smk"

@@ -18,6 +18,7 @@ rule make_windows:
     wildcard_constraints:
         win=WINDOW_SPEC_REGEX,
     threads: 1
+    priority: 1
     script:
         "../scripts/make_windows.py"
 
@@ -36,6 +37,7 @@ rule make_voxels:
         win=WINDOW_SPEC_REGEX,
         bins=r"\d+",
     threads: 1
+    priority: 1
     params:
         conf=lambda w: config["events"]["voxel"],
     script:

@@ -45,6 +45,7 @@ rule run_mvs:
     wildcard_constraints:
         source=r"[A-Za-z0-9_\-]+",
     threads: 2
+    priority: 1
     resources:
         gpu=1,
     params:

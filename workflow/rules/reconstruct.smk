@@ -52,6 +52,7 @@ rule reconstruct_frames:
         win=WINDOW_SPEC_REGEX,
         bins=r"\d+",
     threads: 2
+    priority: 1
     params:
         conf=recon_conf,
     script:

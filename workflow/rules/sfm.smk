@@ -47,6 +47,7 @@ rule run_sfm:
     wildcard_constraints:
         source=r"[A-Za-z0-9_\-]+",
     threads: 2
+    priority: 1
     params:
         frames=lambda w: source_frames_dir(w.dataset, w.source),
         conf=sfm_conf,

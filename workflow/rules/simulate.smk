@@ -14,6 +14,7 @@ rule simulate_groundtruth:
     wildcard_constraints:
         dataset=names_regex(SYNTHETIC),
     threads: 1
+    priority: 1
     params:
         dataset=dataset_conf,
         simulator=sim_conf,
@@ -35,6 +36,7 @@ rule simulate_events:
     wildcard_constraints:
         dataset=names_regex(SYNTHETIC),
     threads: 1
+    priority: 1
     params:
         dataset=dataset_conf,
         simulator=sim_conf,
@@ -52,6 +54,7 @@ rule simulate_conventional:
     wildcard_constraints:
         dataset=names_regex(SYNTHETIC),
     threads: 1
+    priority: 1
     params:
         dataset=dataset_conf,
         simulator=sim_conf,
