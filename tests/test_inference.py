@@ -274,3 +274,15 @@ def test_frame_writer_is_atomic(tmp_path):
     assert (out / "timestamps.txt").read_text() == "0 0.250000\n1 1.500000\n"
     assert np.asarray(Image.open(out / "000000.png"))[0, 0] == 128
     assert np.asarray(Image.open(out / "000001.png"))[0, 0] == 7
+
+
+def test_bfloat16_on_a_cpu_without_it_is_flagged(caplog):
+    """The stage warns when bfloat16 would be emulated (AVX2-only CPUs), and only then."""
+    from evdense.recon.inference import cpu_has_fast_bf16
+    from evdense.recon.networks import build_network
+
+    torch.manual_seed(0)
+    with caplog.at_level("WARNING", logger="evdense"):
+        NetworkReconstructor(build_network("firenet"), precision="bfloat16")
+    warned = any("emulated" in r.getMessage() for r in caplog.records)
+    assert warned == (not cpu_has_fast_bf16())
