@@ -23,38 +23,24 @@ from pathlib import Path
 
 import numpy as np
 import open3d as o3d
+import yaml
 
 from evdense.align import apply_sim3
 from evdense.evaluate.geometry import evaluate_geometry
-from evdense.evaluate.stage import EvalConfig, gt_reference_samples
+from evdense.evaluate.stage import EvalConfig, _apply_h, gt_reference_samples
 from evdense.mesh.geometry import edges_of
-from evdense.mesh.io import read_mesh, read_views
+from evdense.mesh.io import make_mesh, read_mesh, read_views
 from evdense.mesh.refine import RefineConfig, refine_vertices
 
 ROOT = Path(__file__).resolve().parents[1]
 THRESHOLDS = [0.005, 0.01, 0.02]
 
 
-def parse_value(text: str):
-    for cast in (int, float):
-        try:
-            return cast(text)
-        except ValueError:
-            pass
-    if text.startswith("["):
-        return json.loads(text)
-    return text
-
-
 def scored(vertices: np.ndarray, faces: np.ndarray, metrics: dict, gt: o3d.geometry.TriangleMesh,
            gt_samples: np.ndarray | None) -> list[float]:  # fmt: skip
     a = metrics["alignment"]
     v = apply_sim3(a["scale"], np.array(a["R"]), np.array(a["t"]), vertices)
-    H = np.array(a["icp"])
-    v = v @ H[:3, :3].T + H[:3, 3]
-    mesh = o3d.geometry.TriangleMesh(
-        o3d.utility.Vector3dVector(v), o3d.utility.Vector3iVector(faces)
-    )
+    mesh = make_mesh(_apply_h(np.array(a["icp"]), v), faces)
     conf = EvalConfig()
     g = evaluate_geometry(
         mesh, gt, THRESHOLDS, conf.num_samples, conf.crop_margin, gt_samples=gt_samples
@@ -73,7 +59,7 @@ def main() -> None:
     args = ap.parse_args()
     overrides = dict(kv.split("=", 1) for kv in args.set)
     conf = RefineConfig(max_seconds=args.max_seconds)
-    conf = dataclasses.replace(conf, **{k: parse_value(v) for k, v in overrides.items()})
+    conf = dataclasses.replace(conf, **{k: yaml.safe_load(v) for k, v in overrides.items()})
     ds = Path(args.results) / args.dataset
     gt = o3d.io.read_triangle_mesh(str(ds / "gt" / "mesh.ply"))
     gt_samples, _ = gt_reference_samples(ds / "gt", gt, EvalConfig())

@@ -2,10 +2,11 @@
 
 Monocular SfM recovers the scene up to a similarity, so everything is first aligned to the GT:
 Umeyama Sim(3) on camera centres matched by timestamp, then a scaled ICP of the densest cloud onto
-the GT surface, accepted only when it brings the cloud closer (a truncated squared distance falls). The aligned products (sparse cloud,
-dense cloud, meshes) are cropped to the GT volume and scored with :mod:`evdense.evaluate.geometry`;
-the trajectory with :mod:`evdense.evaluate.trajectory`; the frames with
-:mod:`evdense.evaluate.images` against GT intensity rendered at their timestamps.
+the GT surface, accepted only when it brings the cloud closer (a truncated squared distance
+falls). The aligned products (sparse cloud, dense cloud, meshes) are cropped to the GT volume and
+scored with :mod:`evdense.evaluate.geometry`; the trajectory with
+:mod:`evdense.evaluate.trajectory`; the frames with :mod:`evdense.evaluate.images` against GT
+intensity rendered at their timestamps.
 """
 
 from __future__ import annotations

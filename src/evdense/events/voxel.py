@@ -440,9 +440,9 @@ def make_voxels(
     one chunk per window, compressed); ``t_start_us``, ``t_end_us``, ``count``, ``i0``, ``i1`` copied
     from the windows table; ``hot_pixels`` ``(K, 2)`` int32 ``x, y`` of the pixels masked by the
     hot-pixel filter (:func:`find_hot_pixels`; zero in every grid); attrs ``format``,
-    ``version``, ``width``, ``height``, ``bins``, ``spec``, ``normalized`` (False), ``time_unit`` ("us"), ``source``, ``windows``. Memory stays bounded by
-    ``conf.read_block_events`` and a few grids, however long the recording. Written under a
-    temporary name and renamed when complete.
+    ``version``, ``width``, ``height``, ``bins``, ``spec``, ``normalized`` (False), ``time_unit``
+    ("us"), ``source``, ``windows``. Memory stays bounded by ``conf.read_block_events`` and a few
+    grids, however long the recording. Written under a temporary name and renamed when complete.
     """
     out_path = Path(out_path)
     windows, wattrs = read_windows(windows_path)

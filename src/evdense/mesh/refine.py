@@ -300,8 +300,8 @@ def _refine(
     edge_len = float(np.mean(np.linalg.norm(vertices[e[:, 0]] - vertices[e[:, 1]], axis=1)))
     F_t = torch.from_numpy(faces)
     L = _laplacian(len(vertices), faces)
-    # The Laplacian of what is regularised is taken relative to this (zero for "surface").
-    anchor = torch.from_numpy(vertices if config.regularizer == "displacement" else 0 * vertices)
+    # "displacement": the Laplacian of the move from the input; "surface": of the vertices.
+    anchor = torch.from_numpy(vertices) if config.regularizer == "displacement" else None
     rng = np.random.default_rng(config.seed)
 
     full = _Level(views, pairs, 1.0, config)
@@ -338,7 +338,7 @@ def _refine(
             if not losses:
                 continue
             data = torch.stack(losses).mean()
-            lap = torch.sparse.mm(L, V - anchor)
+            lap = torch.sparse.mm(L, V if anchor is None else V - anchor)
             reg = (lap * lap).sum(1).mean() / (edge_len * edge_len)
             loss = data + config.laplacian_weight * reg
             opt.zero_grad()
