@@ -9,7 +9,14 @@ import pytest
 
 from evdense.camera import Camera
 from evdense.config import validate_config
-from evdense.mesh.cleanup import CleanupConfig, clean_mesh, close_small_holes
+from evdense.mesh.cleanup import (
+    CleanupConfig,
+    boundary_vertices,
+    clean_mesh,
+    close_small_holes,
+    loop_nonplanarity,
+    smooth_taubin,
+)
 from evdense.mesh.geometry import face_adjacency, face_normals
 from evdense.mesh.io import (
     Views,
@@ -152,6 +159,111 @@ def test_close_small_holes_makes_a_sphere_watertight():
     assert closed.is_watertight() and closed.is_orientable()
     # A hole larger than the limit stays open.
     assert not close_small_holes(mesh, 3).is_watertight()
+
+
+def grid_mesh(n: int, height=lambda x, y: 0.0 * x) -> tuple[np.ndarray, np.ndarray]:
+    """An ``n x n`` vertex grid over the unit square, z = height(x, y), two faces per cell."""
+    x, y = np.meshgrid(np.linspace(0, 1, n), np.linspace(0, 1, n), indexing="ij")
+    v = np.stack([x.ravel(), y.ravel(), height(x, y).ravel()], axis=1)
+    k = np.arange(n * n).reshape(n, n)
+    a, b, c, d = k[:-1, :-1].ravel(), k[1:, :-1].ravel(), k[1:, 1:].ravel(), k[:-1, 1:].ravel()
+    return v, np.concatenate([np.stack([a, b, c], 1), np.stack([a, c, d], 1)])
+
+
+def punch(v, f, inside) -> o3d.geometry.TriangleMesh:
+    """The mesh without the faces whose centroid satisfies ``inside``."""
+    keep = ~inside(v[f].mean(1))
+    mesh = make_mesh(v, f[keep])
+    mesh.remove_unreferenced_vertices()
+    return mesh
+
+
+def open_boundary_vertices(mesh) -> int:
+    f = np.asarray(mesh.triangles)
+    return len(boundary_vertices(f))
+
+
+def test_loop_nonplanarity_separates_flat_and_bent_loops():
+    t = np.linspace(0, 2 * np.pi, 24, endpoint=False)
+    flat = np.stack([np.cos(t), np.sin(t), 0 * t], 1)
+    saddle = np.stack([np.cos(t), np.sin(t), 0.7 * np.cos(2 * t)], 1)
+    assert loop_nonplanarity(flat) < 1e-9
+    assert (
+        loop_nonplanarity(flat @ np.linalg.qr(np.random.default_rng(1).normal(size=(3, 3)))[0])
+        < 1e-9
+    )
+    assert loop_nonplanarity(saddle) > 0.3
+
+
+def test_only_small_planar_holes_are_closed():
+    v, f = grid_mesh(21)  # unit square, edges 0.05
+    # A 2x2-cell hole in a plane (8 edges, 8 median-ish edges of perimeter) is closed.
+    small = punch(v, f, lambda c: (np.abs(c[:, 0] - 0.5) < 0.05) & (np.abs(c[:, 1] - 0.5) < 0.05))
+    n_open = open_boundary_vertices(small)
+    closed = close_small_holes(small, 40)
+    assert open_boundary_vertices(closed) == n_open - 8  # only the outer border is left
+    assert np.abs(np.asarray(closed.vertices)[:, 2]).max() == 0
+    # The same hole with the edge limit below its length stays open.
+    assert open_boundary_vertices(close_small_holes(small, 7)) == n_open
+    # A 12x12-cell hole has 48 edges: over 40 edges, left open.
+    big = punch(v, f, lambda c: (np.abs(c[:, 0] - 0.5) < 0.3) & (np.abs(c[:, 1] - 0.5) < 0.3))
+    assert open_boundary_vertices(close_small_holes(big, 40)) == open_boundary_vertices(big)
+
+
+def square_ring() -> tuple[np.ndarray, np.ndarray]:
+    """Eight faces between the unit square and the square [0.3, 0.7]^2: a 4-edge hole of
+    perimeter 1.6 in the middle."""
+    outer = np.array([[0, 0], [1, 0], [1, 1], [0, 1]], float)
+    inner = 0.3 + 0.4 * outer
+    v = np.concatenate([np.c_[outer, np.zeros(4)], np.c_[inner, np.zeros(4)]])
+    f = [[k, (k + 1) % 4, 4 + (k + 1) % 4] for k in range(4)]
+    f += [[k, 4 + (k + 1) % 4, 4 + k] for k in range(4)]
+    return v, np.array(f)
+
+
+def test_a_hole_of_few_long_edges_is_left_open():
+    # Alone, the ring's edges are all long: the 4-edge hole is small in median edges and closed.
+    v, f = square_ring()
+    assert len(close_small_holes(make_mesh(v, f), 40).triangles) > len(f)
+    # Next to a fine surface (median edge 0.005, so at most 0.2 of perimeter), the same 4-edge
+    # hole is 320 median edges around: it is an opening, not a pinhole, and stays open.
+    gv, gf = grid_mesh(21)
+    gv = 0.1 * gv + [0, 0, 5]
+    mesh = make_mesh(np.concatenate([v, gv]), np.concatenate([f, gf + len(v)]))
+    assert len(close_small_holes(mesh, 40).triangles) == len(f) + len(gf)
+
+
+def test_a_bent_hole_is_left_open():
+    # A hole across a ridge: the boundary bends around the fold (nonplanarity ~0.35), so a fan
+    # would cut the corner; it is left open. The same hole on the flat grid is closed.
+    ridge = lambda x, y: 1.0 - 2 * np.abs(x - 0.5)  # noqa: E731
+    v, f = grid_mesh(21, ridge)
+    hole = lambda c: (np.abs(c[:, 0] - 0.5) < 0.15) & (np.abs(c[:, 1] - 0.5) < 0.15)  # noqa: E731
+    bent = punch(v, f, hole)
+    assert open_boundary_vertices(close_small_holes(bent, 40)) == open_boundary_vertices(bent)
+    assert open_boundary_vertices(
+        close_small_holes(bent, 40, max_nonplanarity=1.0)
+    ) < open_boundary_vertices(bent)
+    flat = punch(*grid_mesh(21), hole)
+    assert open_boundary_vertices(close_small_holes(flat, 40)) < open_boundary_vertices(flat)
+
+
+def test_taubin_smoothing_keeps_open_borders_in_place(rng):
+    v, f = grid_mesh(21)
+    noisy = v + np.concatenate([np.zeros((len(v), 2)), 0.01 * rng.normal(size=(len(v), 1))], 1)
+    border = boundary_vertices(f)
+    assert len(border) == 80
+    out = smooth_taubin(noisy, f, 5)
+    assert np.array_equal(out[border], noisy[border])
+    inner = np.setdiff1d(np.arange(len(v)), border)
+    assert np.abs(out[inner, 2]).mean() < 0.5 * np.abs(noisy[inner, 2]).mean()
+    # Unpinned, the border is pulled in (the square shrinks), which pinning prevents.
+    free = smooth_taubin(noisy, f, 5, pin_boundary=False)
+    assert np.abs(free[border, :2] - noisy[border, :2]).max() > 1e-3
+    # A closed surface has no boundary: a smoothed sphere keeps its size (Taubin does not shrink).
+    sv, sf = sphere_mesh(1.0, 20)
+    r = np.linalg.norm(smooth_taubin(sv, sf, 5), axis=1)
+    assert abs(r.mean() - 1) < 0.01
 
 
 def test_clean_mesh_removes_small_components_and_decimates():

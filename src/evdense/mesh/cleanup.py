@@ -8,6 +8,7 @@ import numpy as np
 import open3d as o3d
 
 from evdense.log import get_logger
+from evdense.mesh.geometry import edges_of
 
 log = get_logger("mesh.cleanup")
 
@@ -19,9 +20,16 @@ class CleanupConfig:
     min_component_fraction: float = 0.02
     """Connected components with fewer faces than this fraction of the largest one are removed."""
     max_hole_edges: int = 40
-    """Holes whose boundary has at most this many edges are closed (a fan around their centroid)."""
+    """Holes whose boundary has at most this many edges, and whose perimeter is at most this many
+    median edge lengths, are closed (a fan around their centroid)."""
+    max_hole_nonplanarity: float = 0.2
+    """A hole of more than three edges is closed only when its boundary is nearly planar: the RMS
+    distance of the loop to its best-fit plane at most this fraction of the loop's RMS radius. Larger
+    or twisted openings are where the surface really ends (a gap between objects, an unseen side),
+    and a fan across them would be surface that is not there."""
     smooth_iterations: int = 5
-    """Taubin smoothing iterations (lambda 0.5, mu -0.53: smooths without shrinking); 0 for none."""
+    """Taubin smoothing iterations (lambda 0.5, mu -0.53: smooths without shrinking), with the
+    vertices on open boundaries held in place so that borders do not shrink; 0 for none."""
     target_faces: int = 500_000
     """Quadric decimation down to this many faces when the mesh has more; 0 keeps every face."""
 
@@ -86,25 +94,54 @@ def boundary_loops(faces: np.ndarray) -> list[np.ndarray]:
     return loops
 
 
-def close_small_holes(mesh: o3d.geometry.TriangleMesh, max_edges: int) -> o3d.geometry.TriangleMesh:
-    """Close holes bounded by at most ``max_edges`` edges with a fan around the loop's centroid,
-    oriented like the surrounding faces."""
+def loop_nonplanarity(points: np.ndarray) -> float:
+    """RMS distance of a closed loop's points to their best-fit plane over their RMS distance to
+    the centroid (0 for a planar loop; about 0.35 for a loop bent like a saddle or a box corner)."""
+    d = points - points.mean(0)
+    radius = float(np.sqrt((d**2).sum(1).mean()))
+    if radius == 0:
+        return 0.0
+    off_plane = float(np.linalg.svd(d, compute_uv=False)[-1]) / np.sqrt(len(points))
+    return off_plane / radius
+
+
+def close_small_holes(
+    mesh: o3d.geometry.TriangleMesh, max_edges: int, max_nonplanarity: float = 0.2
+) -> o3d.geometry.TriangleMesh:
+    """Close holes with a fan around the loop's centroid, oriented like the surrounding faces.
+
+    A hole is closed when its boundary has at most ``max_edges`` edges, its perimeter is at most
+    ``max_edges`` median edge lengths of the mesh, and (beyond a triangle) its boundary is nearly
+    planar (:func:`loop_nonplanarity` at most ``max_nonplanarity``). Counting edges alone also
+    closes long loops of coarse edges and openings that bend around a corner, inventing surface.
+    """
     if max_edges < 3 or len(mesh.triangles) == 0:
         return mesh
     v = np.asarray(mesh.vertices)
     f = np.asarray(mesh.triangles)
+    e = edges_of(f)
+    median_edge = float(np.median(np.linalg.norm(v[e[:, 0]] - v[e[:, 1]], axis=1)))
     new_v, new_f = [], []
     nv = len(v)
+    skipped = 0
     for loop in boundary_loops(f):
         if len(loop) > max_edges:
+            continue
+        a, b = loop, np.roll(loop, -1)
+        perimeter = float(np.linalg.norm(v[a] - v[b], axis=1).sum())
+        if perimeter > max_edges * median_edge or (
+            len(loop) > 3 and loop_nonplanarity(v[loop]) > max_nonplanarity
+        ):
+            skipped += 1
             continue
         if len(loop) == 3:
             new_f.append(loop[::-1][None])
             continue
         c = nv + len(new_v)
         new_v.append(v[loop].mean(0))
-        a, b = loop, np.roll(loop, -1)
         new_f.append(np.stack([b, a, np.full(len(loop), c)], axis=1))
+    if skipped:
+        log.info("left %d holes open (too long a perimeter or not planar)", skipped)
     if not new_f:
         return mesh
     faces = np.concatenate([f, *new_f])
@@ -120,6 +157,46 @@ def close_small_holes(mesh: o3d.geometry.TriangleMesh, max_edges: int) -> o3d.ge
     return out
 
 
+def boundary_vertices(faces: np.ndarray) -> np.ndarray:
+    """Indices of the vertices on an open boundary (on an edge used by a single face)."""
+    e = np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), axis=1)
+    uniq, counts = np.unique(e, axis=0, return_counts=True)
+    return np.unique(uniq[counts == 1])
+
+
+def smooth_taubin(
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    iterations: int,
+    lam: float = 0.5,
+    mu: float = -0.53,
+    pin_boundary: bool = True,
+) -> np.ndarray:
+    """Taubin smoothing with the uniform Laplacian: per iteration a step ``lam`` towards the mean of
+    the neighbours and a step ``mu`` back. Vertices on open boundaries stay put when
+    ``pin_boundary`` (their one-sided neighbourhood would pull the border inwards). Returns new
+    vertex positions."""
+    from scipy.sparse import coo_matrix
+
+    n = len(vertices)
+    x = np.asarray(vertices, dtype=np.float64).copy()
+    if iterations <= 0 or len(faces) == 0:
+        return x
+    e = edges_of(faces)
+    i = np.concatenate([e[:, 0], e[:, 1]])
+    j = np.concatenate([e[:, 1], e[:, 0]])
+    deg = np.bincount(i, minlength=n).astype(np.float64)
+    mean_of_neighbours = coo_matrix((1.0 / deg[i], (i, j)), shape=(n, n)).tocsr()
+    free = deg > 0
+    if pin_boundary:
+        free[boundary_vertices(faces)] = False
+    for _ in range(iterations):
+        for step in (lam, mu):
+            delta = mean_of_neighbours @ x - x
+            x[free] += step * delta[free]
+    return x
+
+
 def clean_mesh(
     mesh: o3d.geometry.TriangleMesh, config: CleanupConfig | None = None
 ) -> o3d.geometry.TriangleMesh:
@@ -129,13 +206,13 @@ def clean_mesh(
     mesh = o3d.geometry.TriangleMesh(mesh)
     repair(mesh)
     remove_small_components(mesh, config.min_component_fraction)
-    mesh = close_small_holes(mesh, config.max_hole_edges)
+    mesh = close_small_holes(mesh, config.max_hole_edges, config.max_hole_nonplanarity)
     repair(mesh)
     if config.smooth_iterations > 0 and len(mesh.triangles):
-        colors = np.asarray(mesh.vertex_colors).copy() if mesh.has_vertex_colors() else None
-        mesh = mesh.filter_smooth_taubin(number_of_iterations=config.smooth_iterations)
-        if colors is not None:
-            mesh.vertex_colors = o3d.utility.Vector3dVector(colors)
+        smoothed = smooth_taubin(
+            np.asarray(mesh.vertices), np.asarray(mesh.triangles), config.smooth_iterations
+        )
+        mesh.vertices = o3d.utility.Vector3dVector(smoothed)
     if 0 < config.target_faces < len(mesh.triangles):
         n0 = len(mesh.triangles)
         mesh = mesh.simplify_quadric_decimation(config.target_faces)
