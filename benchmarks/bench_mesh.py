@@ -152,6 +152,8 @@ def run_synthetic(args) -> dict:
     rng = np.random.default_rng(0)
     conf = MeshConfig()
     conf.refine.max_seconds = args.refine_seconds
+    if args.smooth_iterations is not None:
+        conf.cleanup.smooth_iterations = args.smooth_iterations
     v, f = scene_mesh()
     gt = make_mesh(v, f)
     diag = float(np.linalg.norm(v.max(0) - v.min(0)))
@@ -220,6 +222,8 @@ def run_workspace(args) -> dict:
     ws = Path(args.workspace)
     conf = MeshConfig()
     conf.refine.max_seconds = args.refine_seconds
+    if args.smooth_iterations is not None:
+        conf.cleanup.smooth_iterations = args.smooth_iterations
     views = read_views(ws)
     k = args.holdout_every
     test_idx = list(range(k // 2, len(views), k))
@@ -276,6 +280,11 @@ def main() -> None:
     ap.add_argument("--outliers", type=float, default=0.02, help="outlier fraction")
     ap.add_argument("--refine-seconds", type=float, default=300.0, help="refinement time budget")
     ap.add_argument("--threads", type=int, default=2, help="torch threads of the refinement")
+    ap.add_argument(
+        "--smooth-iterations",
+        type=int,
+        help="mesh.cleanup.smooth_iterations (default: the config default)",
+    )
     ap.add_argument("--workspace", help="a dense workspace in the GT frame (real pipeline)")
     ap.add_argument("--gt-dir", help="the dataset's gt/ folder (with --workspace)")
     ap.add_argument(

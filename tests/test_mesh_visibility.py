@@ -248,18 +248,28 @@ def test_a_bent_hole_is_left_open():
     assert open_boundary_vertices(close_small_holes(flat, 40)) < open_boundary_vertices(flat)
 
 
-def test_taubin_smoothing_keeps_open_borders_in_place(rng):
+def test_taubin_smoothing_border_modes(rng):
     v, f = grid_mesh(21)
     noisy = v + np.concatenate([np.zeros((len(v), 2)), 0.01 * rng.normal(size=(len(v), 1))], 1)
+    noisy[10, 2] += 0.1  # a spike on the border (vertex 10 is the middle of the edge x = 0)
     border = boundary_vertices(f)
-    assert len(border) == 80
-    out = smooth_taubin(noisy, f, 5)
-    assert np.array_equal(out[border], noisy[border])
+    assert len(border) == 80 and 10 in border
     inner = np.setdiff1d(np.arange(len(v)), border)
-    assert np.abs(out[inner, 2]).mean() < 0.5 * np.abs(noisy[inner, 2]).mean()
-    # Unpinned, the border is pulled in (the square shrinks), which pinning prevents.
-    free = smooth_taubin(noisy, f, 5, pin_boundary=False)
-    assert np.abs(free[border, :2] - noisy[border, :2]).max() > 1e-3
+    moved = {}
+    for mode in ("curve", "pinned", "free"):
+        out = smooth_taubin(noisy, f, 5, boundary=mode)
+        assert np.abs(out[inner, 2]).mean() < 0.5 * np.abs(noisy[inner, 2]).mean(), mode
+        moved[mode] = np.linalg.norm(out[border, :2] - noisy[border, :2], axis=1).mean()
+        spike = out[10, 2]
+        if mode == "pinned":  # the border stays exactly where it was, spike included
+            assert moved[mode] == 0 and spike == noisy[10, 2]
+        else:  # the spike is smoothed away
+            assert spike < 0.5 * noisy[10, 2], mode
+    # Free, the border is pulled inwards (the square shrinks); along the curve only its corners round.
+    assert moved["free"] > 0.005
+    assert moved["curve"] < 0.3 * moved["free"]
+    with pytest.raises(ValueError, match="boundary"):
+        smooth_taubin(noisy, f, 1, boundary="fixed")
     # A closed surface has no boundary: a smoothed sphere keeps its size (Taubin does not shrink).
     sv, sf = sphere_mesh(1.0, 20)
     r = np.linalg.norm(smooth_taubin(sv, sf, 5), axis=1)
