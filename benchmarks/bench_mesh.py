@@ -148,12 +148,18 @@ def psnr_held_out(
     }
 
 
-def run_synthetic(args) -> dict:
-    rng = np.random.default_rng(0)
+def mesh_config(args) -> MeshConfig:
+    """The default mesh config with this script's overrides."""
     conf = MeshConfig()
     conf.refine.max_seconds = args.refine_seconds
     if args.smooth_iterations is not None:
         conf.cleanup.smooth_iterations = args.smooth_iterations
+    return conf
+
+
+def run_synthetic(args) -> dict:
+    rng = np.random.default_rng(0)
+    conf = mesh_config(args)
     v, f = scene_mesh()
     gt = make_mesh(v, f)
     diag = float(np.linalg.norm(v.max(0) - v.min(0)))
@@ -220,10 +226,7 @@ def evaluate_all(
 def run_workspace(args) -> dict:
     """The same steps on a real dense workspace whose world frame is the GT frame."""
     ws = Path(args.workspace)
-    conf = MeshConfig()
-    conf.refine.max_seconds = args.refine_seconds
-    if args.smooth_iterations is not None:
-        conf.cleanup.smooth_iterations = args.smooth_iterations
+    conf = mesh_config(args)
     views = read_views(ws)
     k = args.holdout_every
     test_idx = list(range(k // 2, len(views), k))

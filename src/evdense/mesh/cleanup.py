@@ -205,28 +205,25 @@ def smooth_taubin(
     if iterations <= 0 or len(faces) == 0:
         return x
     e = edges_of(faces)
+    i = np.concatenate([e[:, 0], e[:, 1]])  # (i, j): j is a neighbour of i
+    j = np.concatenate([e[:, 1], e[:, 0]])
     on_border = np.zeros(n, bool)
     if boundary != "free":
         be = boundary_edges(faces)
         on_border[be.ravel()] = True
-        if boundary == "curve":
-            # Interior vertices keep all their edges; border vertices keep only border edges.
-            inner = ~on_border[e[:, 0]] | ~on_border[e[:, 1]]
-            e = np.concatenate([e[inner], be])
-    i = np.concatenate([e[:, 0], e[:, 1]])
-    j = np.concatenate([e[:, 1], e[:, 0]])
-    if boundary == "curve":
-        keep = ~on_border[i] | on_border[j]  # a border vertex averages border neighbours only
-        i, j = i[keep], j[keep]
+    if boundary == "curve":  # border vertices average their border neighbours only
+        inner = ~on_border[i]
+        i = np.concatenate([i[inner], be[:, 0], be[:, 1]])
+        j = np.concatenate([j[inner], be[:, 1], be[:, 0]])
     deg = np.bincount(i, minlength=n).astype(np.float64)
     mean_of_neighbours = coo_matrix((1.0 / deg[i], (i, j)), shape=(n, n)).tocsr()
-    free = deg > 0
+    movable = deg > 0
     if boundary == "pinned":
-        free[on_border] = False
+        movable &= ~on_border
     for _ in range(iterations):
         for step in (lam, mu):
             delta = mean_of_neighbours @ x - x
-            x[free] += step * delta[free]
+            x[movable] += step * delta[movable]
     return x
 
 
