@@ -37,13 +37,15 @@ THRESHOLDS = [0.005, 0.01, 0.02]
 
 
 def scored(vertices: np.ndarray, faces: np.ndarray, metrics: dict, gt: o3d.geometry.TriangleMesh,
-           gt_samples: np.ndarray | None) -> list[float]:  # fmt: skip
+           gt_samples: np.ndarray | None, thresholds=THRESHOLDS) -> list[float]:  # fmt: skip
+    """F-scores of a mesh in the run's frame, moved into the GT frame with the alignment its
+    evaluation found (``metrics``: Sim(3) then ICP), at ``thresholds`` (fractions of the diagonal)."""
     a = metrics["alignment"]
     v = apply_sim3(a["scale"], np.array(a["R"]), np.array(a["t"]), vertices)
     mesh = make_mesh(_apply_h(np.array(a["icp"]), v), faces)
     conf = EvalConfig()
     g = evaluate_geometry(
-        mesh, gt, THRESHOLDS, conf.num_samples, conf.crop_margin, gt_samples=gt_samples
+        mesh, gt, thresholds, conf.num_samples, conf.crop_margin, gt_samples=gt_samples
     ).to_dict()
     return list(g["fscore"])
 

@@ -34,8 +34,9 @@ class CleanupConfig:
     iterations raised it (docs/benchmarks.md, issue 7)."""
     smooth_boundary: str = "free"
     """What Taubin smoothing does with vertices on open borders: ``free`` treats them as any other
-    vertex (the border creeps inwards a little; best F-score where measured), ``curve`` smooths them
-    along the border only, ``pinned`` holds them in place (and keeps the spikes noise left there)."""
+    vertex (the border creeps inwards a little), ``curve`` smooths them along the border only,
+    ``pinned`` holds them in place (and keeps the spikes noise left there). Free scored best on the
+    synthetic check, pinned on the default scene (``benchmarks/bench_cleanup.py``)."""
     target_faces: int = 500_000
     """Quadric decimation down to this many faces when the mesh has more; 0 keeps every face."""
 
