@@ -36,7 +36,7 @@ import open3d as o3d
 from evdense.camera import davis346
 from evdense.evaluate.geometry import evaluate_geometry
 from evdense.log import setup_logging
-from evdense.mesh.cleanup import clean_mesh
+from evdense.mesh.cleanup import BOUNDARY_MODES, clean_mesh
 from evdense.mesh.geometry import make_scene, project, raycast_view
 from evdense.mesh.io import Views, make_mesh, read_mesh, read_point_cloud, read_views
 from evdense.mesh.poisson import poisson_mesh
@@ -154,6 +154,8 @@ def mesh_config(args) -> MeshConfig:
     conf.refine.max_seconds = args.refine_seconds
     if args.smooth_iterations is not None:
         conf.cleanup.smooth_iterations = args.smooth_iterations
+    if args.smooth_boundary is not None:
+        conf.cleanup.smooth_boundary = args.smooth_boundary
     return conf
 
 
@@ -287,6 +289,11 @@ def main() -> None:
         "--smooth-iterations",
         type=int,
         help="mesh.cleanup.smooth_iterations (default: the config default)",
+    )
+    ap.add_argument(
+        "--smooth-boundary",
+        choices=BOUNDARY_MODES,
+        help="mesh.cleanup.smooth_boundary (default: the config default)",
     )
     ap.add_argument("--workspace", help="a dense workspace in the GT frame (real pipeline)")
     ap.add_argument("--gt-dir", help="the dataset's gt/ folder (with --workspace)")
