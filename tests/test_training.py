@@ -10,6 +10,7 @@ import torch
 from skimage.metrics import structural_similarity
 
 from evdense.recon.checkpoints import load_checkpoint
+from evdense.recon.inference import NetworkReconstructor
 from evdense.recon.postprocess import standardize_nonzero
 from evdense.training.data import TrainDataConfig, generate_dataset, load_split, simulate_sequence
 from evdense.training.evaluate import EvalConfig, evaluate_methods, frame_scores, read_heldout
@@ -42,6 +43,7 @@ TINY = {
         "height": 48,
         "focal_px": 50.0,
         "windows_per_sequence": 10,
+        "heldout_windows_per_sequence": 10,
         "texture_size": 128,
         "max_duration_s": 4.0,
     },
@@ -77,7 +79,28 @@ def test_sequence_is_seeded_and_well_formed():
     expect = np.clip((a.log_radiance - lo) / (hi - lo), 0, 1)
     assert np.allclose(a.targets, expect, atol=1e-5)
     c = a.recipe["event_camera"]["contrast_pos"]
-    assert 0.1 * 0.8 <= c <= 0.8 * 1.25
+    assert 0.1 / 1.5 <= c <= 1.2 * 1.5
+
+
+@pytest.mark.parametrize("generator", ["planar", "scene3d"])
+def test_both_generators_make_sequences(generator):
+    conf = TrainDataConfig(**{**TINY["data"], "planar_fraction": float(generator == "planar")})
+    seq = next(s for s in (simulate_sequence(conf, "train", i) for i in range(20)) if s is not None)
+    assert seq.recipe["generator"] == generator
+    assert seq.voxels.shape == (10, 5, 48, 64) and np.isfinite(seq.log_radiance).all()
+    # the targets move: the camera (or the layers) moved between the first and the last window
+    assert np.abs(seq.targets[-1] - seq.targets[0]).mean() > 0.01
+
+
+def test_heldout_split_does_not_follow_the_training_recipe():
+    base = TrainDataConfig(**TINY["data"])
+    other = TrainDataConfig(**{**TINY["data"], "contrast_range": [0.5, 0.6], "planar_fraction": 1.0,
+                               "noise_rate_range": [3.0, 4.0], "max_duration_s": 2.0})  # fmt: skip
+    a = simulate_sequence(base, "heldout", 3)
+    b = simulate_sequence(other, "heldout", 3)
+    assert a is not None and b is not None
+    assert a.recipe["generator"] == "scene3d"
+    assert np.array_equal(a.voxels, b.voxels) and a.recipe == b.recipe
 
 
 def test_ssim_matches_scikit_image():
@@ -120,10 +143,19 @@ def test_window_normalisation_matches_inference():
     rng = np.random.default_rng(1)
     vox = rng.standard_normal((3, 5, 12, 16)).astype(np.float32)
     vox[rng.random(vox.shape) < 0.7] = 0
+    vox[0, 0, 0, :4] = [9.0, -7.0, 4.0, 2.5]  # cells above the pipeline's voxel clip of 3
     ours = normalize_windows(vox).float()
+    clipped = normalize_windows(vox, clip=3.0).float()
     for k in range(3):
         ref = standardize_nonzero(torch.from_numpy(vox[k].copy())[None])[0]
         assert torch.allclose(ours[k], ref, atol=5e-3)  # float16 storage
+    # with a clip, the training input is what the pipeline's reconstructor feeds its network
+    net = build_model(TrainConfig.from_dict(TINY)).eval()
+    for k in range(3):
+        rec = NetworkReconstructor(net, channels_last=False, voxel_clip=3.0)
+        with torch.no_grad():
+            direct, _ = net(clipped[k : k + 1], None)
+        assert np.allclose(rec(vox[k]), direct[0, 0].clamp(0, 1).numpy(), atol=2e-2)
 
 
 @pytest.mark.slow
@@ -185,3 +217,22 @@ def test_config_rejects_unknown_keys():
         TrainConfig.from_dict({"data": {"nope": 1}})
     with pytest.raises(ValueError, match="tbptt"):
         TrainConfig.from_dict({"sequence_length": 10, "tbptt_length": 4})
+
+
+def test_schema_defaults_match_the_train_dataclasses():
+    from dataclasses import asdict
+
+    import yaml
+    from conftest import REPO
+
+    schema = yaml.safe_load((REPO / "workflow" / "schemas" / "config.schema.yaml").read_text())
+    props = schema["properties"]["train"]["properties"]
+    defaults = asdict(TrainConfig())
+    data = defaults.pop("data")
+    assert set(props) - {"data"} == set(defaults)
+    for k, v in defaults.items():
+        assert props[k]["default"] == v and props[k].get("description"), k
+    dprops = props["data"]["properties"]
+    assert set(dprops) == set(data)
+    for k, v in data.items():
+        assert dprops[k]["default"] == v and dprops[k].get("description"), f"data.{k}"

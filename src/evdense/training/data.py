@@ -58,7 +58,7 @@ from evdense.sim.scene import build_scene
 log = get_logger("training")
 
 TRAINSET_FORMAT = "evdense-recon-trainset"
-TRAINSET_VERSION = 1
+TRAINSET_VERSION = 2
 SPLITS = ("train", "val", "heldout")
 
 TRAIN_IMAGES = (
@@ -90,30 +90,56 @@ class TrainDataConfig:
     """Focal length, pixels (about 65 degrees horizontal field of view at 128 px)."""
     bins: int = 5
     """Temporal bins B of the voxel grids."""
-    windows_per_sequence: int = 32
-    """Windows of N events simulated per sequence."""
-    events_per_pixel: list[float] = field(default_factory=lambda: [0.25, 0.6])
-    """Range [lo, hi] of events per pixel in a window (N = value x width x height), drawn per sequence."""
+    windows_per_sequence: int = 48
+    """Windows of N events simulated per train/val sequence."""
+    heldout_windows_per_sequence: int = 32
+    """Windows of N events per held-out sequence."""
+    planar_fraction: float = 0.7
+    """Fraction of train/val sequences from the planar generator (:mod:`evdense.training.planar`); the rest are 3D scenes."""
+    events_per_pixel: list[float] = field(default_factory=lambda: [0.15, 0.8])
+    """Range [lo, hi] of events per pixel in a window (N = value x width x height), drawn log-uniform per sequence."""
     heldout_events_per_pixel: float = 0.3
     """Events per pixel in the windows of the held-out split (the pipeline's default is ~0.28)."""
-    contrast_range: list[float] = field(default_factory=lambda: [0.1, 0.8])
+    contrast_range: list[float] = field(default_factory=lambda: [0.1, 1.2])
     """Range of the mean contrast threshold C (log units), drawn log-uniform per sequence."""
-    contrast_asymmetry: float = 1.25
+    contrast_asymmetry: float = 1.5
     """Largest ratio between the ON and OFF thresholds (each drawn as C * r^(+-1), r in [1, this])."""
-    noise_rate_range: list[float] = field(default_factory=lambda: [0.01, 2.0])
+    contrast_spread: list[float] = field(default_factory=lambda: [0.03, 0.3])
+    """Range of the per-pixel threshold spread as a fraction of C (Gaussian sigma), drawn uniform."""
+    refractory_us: list[float] = field(default_factory=lambda: [0.0, 1000.0])
+    """Range of the refractory period, microseconds, drawn uniform."""
+    noise_rate_range: list[float] = field(default_factory=lambda: [0.01, 5.0])
     """Range of background-activity noise per pixel (Hz), drawn log-uniform."""
     hot_pixel_fraction_max: float = 1e-3
     """Largest fraction of hot pixels (drawn uniform in [0, this])."""
-    step_tolerance: float = 0.3
+    step_tolerance: float = 0.5
     """ESIM adaptive step: largest log change between renders as a fraction of C."""
     target_percentiles: list[float] = field(default_factory=lambda: [0.5, 99.5])
     """Percentiles of a sequence's log radiance mapped to target 0 and 1."""
-    hdr_fraction: float = 0.25
-    """Fraction of train/val sequences with a light panel (dynamic range 2 to 20)."""
-    max_duration_s: float = 8.0
+    hdr_fraction: float = 0.3
+    """Fraction of train/val sequences with a lit region or light panel."""
+    dynamic_range_max: float = 1e5
+    """Largest dynamic range (lit / unlit radiance) of those, drawn log-uniform from 2 (3D) or 10 (planar)."""
+    max_duration_s: float = 30.0
     """Give up on a sequence whose windows are not complete after this many seconds of motion."""
+    max_renders: int = 6000
+    """Give up on a sequence whose windows are not complete after this many renders (bounds the cost of one sequence)."""
     texture_size: int = 512
     """Side of the procedural textures, texels."""
+
+
+HELDOUT_RECIPE = {
+    "contrast_range": [0.1, 0.8],
+    "contrast_asymmetry": 1.25,
+    "noise_rate_range": [0.01, 2.0],
+    "hot_pixel_fraction_max": 1e-3,
+    "step_tolerance": 0.3,
+    "target_percentiles": [0.5, 99.5],
+    "max_duration_s": 8.0,
+    "max_renders": 10**9,
+}
+"""The held-out split's fixed recipe (independent of the training recipe, so that every model is
+scored on the same sequences): 3D scenes with the held-out textures, objects and motions."""
 
 
 def _loguniform(rng: np.random.Generator, lo: float, hi: float) -> float:
@@ -282,6 +308,10 @@ class _Enough(Exception):
     """Raised by the event sink to stop the simulation once enough events were made."""
 
 
+class _TooSlow(Exception):
+    """Raised by the renderer wrapper when a sequence needs more than ``max_renders`` renders."""
+
+
 @dataclass
 class Sequence:
     """One simulated sequence: windows of events, their raw voxel grids and targets."""
@@ -304,6 +334,30 @@ class Sequence:
     """Scene spec, motion, event camera settings, events per pixel, kind."""
 
 
+def _event_camera(conf: TrainDataConfig, split: str, rng: np.random.Generator) -> EventCameraConfig:
+    """Event camera settings drawn for one sequence (the held-out split keeps its fixed recipe)."""
+    c = _loguniform(rng, *conf.contrast_range)
+    r = float(rng.uniform(1.0, conf.contrast_asymmetry)) ** float(rng.choice([-1, 1]))
+    if split == "heldout":
+        spread, refractory = 0.1, 100.0
+    else:
+        spread = float(rng.uniform(*conf.contrast_spread))
+        refractory = float(rng.uniform(*conf.refractory_us))
+    return EventCameraConfig(
+        contrast_pos=c * r,
+        contrast_neg=c / r,
+        contrast_sigma=spread * c,
+        contrast_min=0.05,
+        refractory_us=refractory,
+        noise_rate_hz=_loguniform(rng, *conf.noise_rate_range),
+        hot_pixel_fraction=float(rng.uniform(0, conf.hot_pixel_fraction_max)),
+        hot_pixel_rate_hz=float(rng.uniform(10, 100)),
+        step_tolerance=conf.step_tolerance,
+        max_step_us=2000.0,
+        chunk_events=1024,
+    )
+
+
 def _sequence_recipe(
     conf: TrainDataConfig, split: str, rng: np.random.Generator
 ) -> tuple[dict, Motion, EventCameraConfig, int, dict[str, Any]]:
@@ -316,55 +370,102 @@ def _sequence_recipe(
     if split == "heldout":
         dyn = _loguniform(rng, 20.0, 100.0) if hdr else 1.0
     else:
-        dyn = _loguniform(rng, 2.0, 20.0) if hdr else 1.0
+        dyn = _loguniform(rng, 2.0, conf.dynamic_range_max) if hdr else 1.0
     motion = random_motion(rng, "smooth" if kind == "hdr" else kind)
-    c = _loguniform(rng, *conf.contrast_range)
-    r = float(rng.uniform(1.0, conf.contrast_asymmetry)) ** float(rng.choice([-1, 1]))
-    cam = EventCameraConfig(
-        contrast_pos=c * r,
-        contrast_neg=c / r,
-        contrast_sigma=0.1 * c,
-        contrast_min=0.05,
-        noise_rate_hz=_loguniform(rng, *conf.noise_rate_range),
-        hot_pixel_fraction=float(rng.uniform(0, conf.hot_pixel_fraction_max)),
-        hot_pixel_rate_hz=float(rng.uniform(10, 100)),
-        step_tolerance=conf.step_tolerance,
-        max_step_us=2000.0,
-        chunk_events=1024,
-    )
+    cam = _event_camera(conf, split, rng)
+    n, epp = _window_size(conf, split, rng)
+    info = {"kind": kind, "dynamic_range": dyn, "events_per_pixel": epp, "events_per_window": n}
+    return spec, motion, cam, n, info
+
+
+def _window_size(conf: TrainDataConfig, split: str, rng: np.random.Generator) -> tuple[int, float]:
     if split == "heldout":
         epp = conf.heldout_events_per_pixel
     else:
-        epp = float(rng.uniform(*conf.events_per_pixel))
-    n = max(1, int(round(epp * conf.width * conf.height)))
-    info = {"kind": kind, "dynamic_range": dyn, "events_per_pixel": epp, "events_per_window": n}
-    return spec, motion, cam, n, info
+        epp = _loguniform(rng, *conf.events_per_pixel)
+    return max(1, int(round(epp * conf.width * conf.height))), epp
+
+
+def heldout_config(conf: TrainDataConfig) -> TrainDataConfig:
+    """``conf`` with the held-out split's fixed recipe (:data:`HELDOUT_RECIPE`)."""
+    return TrainDataConfig(
+        **{
+            **asdict(conf),
+            **HELDOUT_RECIPE,
+            "windows_per_sequence": conf.heldout_windows_per_sequence,
+        }
+    )
 
 
 def simulate_sequence(conf: TrainDataConfig, split: str, seed: int) -> Sequence | None:
     """Simulate one random sequence of ``split`` from ``seed``; None when it makes too few events.
 
     Returns ``conf.windows_per_sequence`` windows of N events, their raw voxel grids ``(B, H, W)``
-    and targets ``(H, W)`` (see the module docstring).
+    and targets ``(H, W)`` (see the module docstring). Train and val sequences come from the
+    planar generator with probability ``conf.planar_fraction``, else from a 3D scene; held-out
+    sequences always from a held-out 3D scene, with :data:`HELDOUT_RECIPE`.
     """
     if split not in SPLITS:
         raise ValueError(f"unknown split {split!r} ({', '.join(SPLITS)})")
+    if split == "heldout":
+        conf = heldout_config(conf)
     rng = np.random.default_rng(seed)
-    spec, motion, cam, n, info = _sequence_recipe(conf, split, rng)
-    render = RenderConfig(
-        camera={"width": conf.width, "height": conf.height, "fx": conf.focal_px,
-                "fy": conf.focal_px, "cx": conf.width / 2, "cy": conf.height / 2}
-    )  # fmt: skip
-    dataset = {"speed": 1.0, "dynamic_range": info["dynamic_range"], "duration": 1.0, "seed": seed}
-    scene = build_scene(spec, dataset, render, None)
-    renderer = Renderer(scene, supersample=1)
+    if split != "heldout" and rng.random() < conf.planar_fraction:
+        radiance_at, cam, n, recipe_extra = _planar_recipe(conf, split, rng)
+    else:
+        spec, motion, cam, n, info = _sequence_recipe(conf, split, rng)
+        render = RenderConfig(
+            camera={"width": conf.width, "height": conf.height, "fx": conf.focal_px,
+                    "fy": conf.focal_px, "cx": conf.width / 2, "cy": conf.height / 2}
+        )  # fmt: skip
+        dataset = {
+            "speed": 1.0,
+            "dynamic_range": info["dynamic_range"],
+            "duration": 1.0,
+            "seed": seed,
+        }
+        scene = build_scene(spec, dataset, render, None)
+        renderer = Renderer(scene, supersample=1)
 
-    def radiance_at(t: float) -> np.ndarray:
-        return renderer.radiance(motion.pose(t))
+        def radiance_at(t: float) -> np.ndarray:
+            return renderer.radiance(motion.pose(t))
 
+        recipe_extra = {"generator": "scene3d", **info, "scene": spec, "motion": motion.to_dict()}
+    return run_sequence(conf, split, seed, rng, radiance_at, cam, n, recipe_extra)
+
+
+def _planar_recipe(
+    conf: TrainDataConfig, split: str, rng: np.random.Generator
+) -> tuple[Any, EventCameraConfig, int, dict[str, Any]]:
+    from evdense.training.planar import PlanarScene
+
+    hdr = rng.random() < conf.hdr_fraction
+    dyn = _loguniform(rng, 10.0, conf.dynamic_range_max) if hdr else 1.0
+    scene = PlanarScene(rng, conf.width, conf.height, 0.5, dynamic_range=dyn)
+    cam = _event_camera(conf, split, rng)
+    n, epp = _window_size(conf, split, rng)
+    info = {"generator": "planar", "kind": "hdr" if hdr else "smooth", "dynamic_range": dyn,
+            "events_per_pixel": epp, "events_per_window": n,
+            "layers": len(scene.layers)}  # fmt: skip
+    return scene.radiance, cam, n, info
+
+
+def run_sequence(
+    conf: TrainDataConfig,
+    split: str,
+    seed: int,
+    rng: np.random.Generator,
+    radiance_at: Any,
+    cam: EventCameraConfig,
+    n: int,
+    recipe_extra: dict[str, Any],
+) -> Sequence | None:
+    """Simulate the event camera ``cam`` over ``radiance_at`` until ``conf.windows_per_sequence``
+    windows of ``n`` events are complete; their voxel grids and targets (None when the motion
+    gives too few events within ``conf.max_duration_s`` seconds or ``conf.max_renders`` renders)."""
     need = n * conf.windows_per_sequence
     parts: list[Events] = []
-    count = 0
+    count = renders = 0
 
     def sink(ev: Events) -> None:
         nonlocal count
@@ -373,12 +474,19 @@ def simulate_sequence(conf: TrainDataConfig, split: str, seed: int) -> Sequence 
         if count >= need:
             raise _Enough
 
+    def counted(t: float) -> np.ndarray:
+        nonlocal renders
+        renders += 1
+        if renders > conf.max_renders:
+            raise _TooSlow
+        return radiance_at(t)
+
     try:
-        simulate_event_stream(radiance_at, 0.0, conf.max_duration_s, cam, rng, sink)
-    except _Enough:
+        simulate_event_stream(counted, 0.0, conf.max_duration_s, cam, rng, sink)
+    except (_Enough, _TooSlow):
         pass
     if count < need:
-        log.debug("sequence %d (%s): only %d of %d events", seed, split, count, need)
+        log.info("sequence %d (%s): only %d of %d events, skipped", seed, split, count, need)
         return None
     ev = Events.concatenate(parts)[:need]
     idx = np.arange(0, need + 1, n, dtype=np.int64)
@@ -398,9 +506,7 @@ def simulate_sequence(conf: TrainDataConfig, split: str, seed: int) -> Sequence 
     recipe = {
         "split": split,
         "seed": seed,
-        **info,
-        "scene": spec,
-        "motion": motion.to_dict(),
+        **recipe_extra,
         "event_camera": cam.to_dict(),
         "duration_s": float(t_end[-1]) * 1e-6,
     }

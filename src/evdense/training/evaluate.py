@@ -56,6 +56,8 @@ class EvalConfig:
     """Cut-off frequency of the high-pass filter baseline (rad/s)."""
     integrate_leak_rad_s: float = 0.1
     """Leak of the direct-integration baseline (rad/s)."""
+    voxel_clip: float = 3.0
+    """Cap on ``|voxel|`` before a network's input normalisation (the pipeline's ``reconstruct.voxel_clip``)."""
 
 
 @dataclass
@@ -127,7 +129,7 @@ def method_frames(
         return baseline_frames(seq, method, conf)
     if checkpoint is None:
         raise ValueError(f"method {method!r} is no baseline and has no checkpoint")
-    rec = NetworkReconstructor(load_checkpoint(checkpoint).net)
+    rec = NetworkReconstructor(load_checkpoint(checkpoint).net, voxel_clip=conf.voxel_clip)
     return rec.run(seq.voxels)
 
 

@@ -48,9 +48,9 @@ class TrainConfig:
 
     seed: int = 0
     """Seed of the data set, the initial weights and the batch sampling."""
-    num_train_sequences: int = 160
+    num_train_sequences: int = 360
     """Simulated training sequences."""
-    num_val_sequences: int = 8
+    num_val_sequences: int = 12
     """Simulated validation sequences (training distribution, other seeds; picks the best checkpoint)."""
     num_heldout_sequences: int = 24
     """Simulated held-out sequences (unseen textures, objects, motions, HDR) for the quality table."""
@@ -62,10 +62,12 @@ class TrainConfig:
     """Crops per step."""
     crop_size: int = 64
     """Side of the square training crops, pixels."""
-    sequence_length: int = 16
+    sequence_length: int = 40
     """Consecutive windows per crop and step (from a zero recurrent state)."""
-    tbptt_length: int = 8
+    tbptt_length: int = 20
     """Windows per backpropagation chunk (the state is detached between chunks)."""
+    voxel_clip: float = 3.0
+    """Cap on ``|voxel|`` before the input normalisation, as ``reconstruct.voxel_clip`` at inference (0 = none)."""
     max_steps: int = 4000
     """Training steps (batches of sequences); the learning rate follows a cosine to this step."""
     lr: float = 2e-3
@@ -87,7 +89,9 @@ class TrainConfig:
     loss_anchor: float = 0.0
     """Weight of a plain L1 on the raw output (keeps it in [0, 1] with ``loss_affine_invariant``)."""
     augment: bool = True
-    """Random horizontal flips and polarity inversions."""
+    """Random flips, quarter turns and polarity inversions."""
+    augment_rotations: bool = True
+    """With ``augment``: random quarter turns of the (square) crops too."""
     checkpoint_every: int = 100
     """Steps between resumable checkpoints."""
     keep_checkpoints: int = 2
@@ -162,17 +166,20 @@ class TrainResult:
 # ---------------------------------------------------------------------------------------------
 
 
-def normalize_windows(voxels: np.ndarray) -> torch.Tensor:
+def normalize_windows(voxels: np.ndarray, clip: float = 0.0) -> torch.Tensor:
     """FireNet's input normalisation per window, ``(..., B, H, W)`` -> float16 tensor, same shape.
 
-    The non-zero entries of each window are standardised to mean 0 and (unbiased) std 1, zeros
-    stay zero (as :func:`evdense.recon.postprocess.standardize_nonzero` does at inference).
+    Each cell is first capped at ``|v| <= clip`` (0 = no cap), then the non-zero entries of each
+    window are standardised to mean 0 and (unbiased) std 1, zeros stay zero (as
+    :class:`evdense.recon.inference.NetworkReconstructor` does at inference).
     """
     shape = voxels.shape
     flat = voxels.reshape(-1, int(np.prod(shape[-3:])))
     out = torch.empty(flat.shape, dtype=torch.float16)
     for i in range(0, len(flat), 64):
         x = torch.from_numpy(np.asarray(flat[i : i + 64], dtype=np.float32))
+        if clip > 0:
+            x = x.clamp(-clip, clip)
         mask = x != 0
         n = mask.sum(1, keepdim=True).clamp_min(1)
         mean = x.sum(1, keepdim=True) / n
@@ -187,7 +194,7 @@ class SequenceSampler:
     """Random crops of consecutive windows from a split held in memory (float16)."""
 
     def __init__(self, voxels: np.ndarray, targets: np.ndarray, conf: TrainConfig) -> None:
-        self.voxels = normalize_windows(voxels)  # (S, W, B, H, Wd)
+        self.voxels = normalize_windows(voxels, conf.voxel_clip)  # (S, W, B, H, Wd)
         self.targets = torch.from_numpy(np.asarray(targets, dtype=np.float16))  # (S, W, H, Wd)
         self.conf = conf
 
@@ -208,6 +215,10 @@ class SequenceSampler:
                 v, t = v.flip(-1), t.flip(-1)
             if self.conf.augment and invert:
                 v, t = -v, 1.0 - t
+            if self.conf.augment and self.conf.augment_rotations:
+                q = int(rng.integers(4))
+                if q:
+                    v, t = v.rot90(q, (-2, -1)), t.rot90(q, (-2, -1))
             xs.append(v)
             ys.append(t[:, None])
         return torch.stack(xs, 1).contiguous(), torch.stack(ys, 1).contiguous()
@@ -340,7 +351,7 @@ def train_model(
     weights = conf.loss_weights()
     train = SequenceSampler(*load_split(data_path, "train"), conf)
     v_vox, v_tgt = load_split(data_path, "val")
-    v_vox = normalize_windows(v_vox)
+    v_vox = normalize_windows(v_vox, conf.voxel_clip)
     v_tgt = torch.from_numpy(v_tgt)
 
     cl = torch.channels_last  # faster convolutions on CPU (oneDNN)

@@ -1,0 +1,132 @@
+"""Long-run stability of reconstruction on a low-texture scene (issue 18's stability figure).
+
+Usage: PYTHONPATH=src .venv/bin/python benchmarks/bench_recon_stability.py
+           [--ours resources/weights/evfirenet.pt ...] [--anchors ../shared/anchors]
+           [--windows 520] [--data results/benchmarks/stability_lowtex.h5]
+
+The scene (not a training scene: held-out pictures, its own geometry and path) is a room with
+plain, faintly mottled walls, floor and ceiling, a poster of skimage's ``moon`` and two boxes; the
+camera walks back and forth along a slow loop for ``--windows`` windows of 0.278 events per pixel
+(the pipeline's density) at 173 x 130 pixels, through an event camera with thresholds 0.2 +- 0.03,
+background noise 0.1 Hz and a 100 us refractory period. The simulation is cached in ``--data``.
+
+Every network runs over all windows from an empty state (input normalisation of its own, voxel
+clip 3 as in the pipeline). Per window, prediction and GT (log radiance, as our GT frames) are
+each rescaled by their 1st-99th percentiles; the figure is the fraction of pixels whose absolute
+error exceeds 0.3. Printed: its maximum and mean over windows 100 onwards (target: max < 5 %),
+and the mean SSIM over the same windows.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+import h5py
+import numpy as np
+import torch
+
+from evdense.evaluate.images import image_metrics, normalize_intensity
+from evdense.recon.checkpoints import load_checkpoint
+from evdense.recon.inference import NetworkReconstructor
+from evdense.sim.esim import EventCameraConfig
+from evdense.sim.render import RenderConfig, Renderer
+from evdense.sim.scene import build_scene
+from evdense.training.data import TrainDataConfig, run_sequence
+
+ROOT = Path(__file__).resolve().parents[1]
+W, H, F = 173, 130, 125.0
+
+
+def scene_spec() -> dict:
+    plain = {"type": "noise", "size": 512, "beta": 3.2, "sharpness": 0.6}
+    loop = [([0.0, -1.5, 1.4], [0.5, 2.0, 1.0]), ([1.2, -1.0, 1.5], [-0.5, 2.5, 0.9]),
+            ([0.4, 0.2, 1.3], [-1.5, 2.5, 1.2]), ([-1.0, -0.4, 1.6], [0.5, 3.0, 0.8]),
+            ([-1.2, -1.4, 1.4], [1.5, 2.0, 1.1])]  # fmt: skip
+    keys = [{"position": p, "look_at": q} for p, q in loop * 6 + loop[:1]]
+    return {
+        "name": "lowtex_room",
+        "duration": 60.0,
+        "shading": {"direction": [0.4, -0.6, 1.0], "ambient": 0.6},
+        "materials": {
+            "wall": {"texture": {**plain, "low": 0.55, "high": 0.62, "seed": 1}, "tile_m": 3.0},
+            "floor": {"texture": {**plain, "low": 0.3, "high": 0.36, "seed": 2}, "tile_m": 3.0},
+            "ceiling": {"texture": {**plain, "low": 0.7, "high": 0.75, "seed": 3}, "tile_m": 3.0},
+            "poster": {"texture": "skimage:moon", "tile_m": 1.2},
+            "box": {"texture": {"type": "noise", "beta": 2.2, "low": 0.1, "high": 0.6}, "tile_m": 0.6},
+        },
+        "objects": [
+            {"type": "room", "size": [6.0, 6.0, 3.0], "center": [0.0, 0.5, 1.5], "material": "wall",
+             "face_materials": {"floor": "floor", "ceiling": "ceiling"}},
+            {"type": "plane", "center": [0.3, 3.48, 1.5], "size": [1.2, 0.9],
+             "normal": [0, -1, 0], "up": [0, 0, 1], "material": "poster"},
+            {"type": "box", "size": [0.6, 0.6, 0.6], "center": [-1.2, 2.2, 0.3], "material": "box"},
+            {"type": "box", "size": [0.4, 0.4, 1.0], "center": [1.6, 1.8, 0.5],
+             "rotation_deg": [0, 0, 30], "material": "box"},
+        ],
+        "trajectory": {"type": "spline", "key_poses": keys},
+    }  # fmt: skip
+
+
+def simulate(path: Path, windows: int) -> None:
+    render = RenderConfig(
+        camera={"width": W, "height": H, "fx": F, "fy": F, "cx": W / 2, "cy": H / 2}
+    )
+    scene = build_scene(scene_spec(), {"speed": 1.0, "dynamic_range": 1.0, "duration": 60.0,
+                                       "seed": 0}, render, None)  # fmt: skip
+    renderer = Renderer(scene, supersample=2)
+    cam = EventCameraConfig(contrast_pos=0.2, contrast_neg=0.2, contrast_sigma=0.03,
+                            noise_rate_hz=0.1, hot_pixel_fraction=0.0, chunk_events=4096)  # fmt: skip
+    conf = TrainDataConfig(width=W, height=H, windows_per_sequence=windows, max_duration_s=60.0,
+                           max_renders=10**9)  # fmt: skip
+    n = int(round(0.278 * W * H))
+    seq = run_sequence(conf, "heldout", 0, np.random.default_rng(0), renderer.radiance_at, cam, n,
+                       {"scene": "lowtex_room"})  # fmt: skip
+    if seq is None:
+        raise SystemExit("the low-texture path gave too few events")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with h5py.File(path, "w") as f:
+        f["voxels"] = seq.voxels.astype(np.float16)
+        f["log_radiance"] = seq.log_radiance
+        f.attrs["recipe"] = json.dumps(seq.recipe, default=str)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--ours", nargs="+", default=[str(ROOT / "resources/weights/evfirenet.pt")])
+    ap.add_argument("--anchors", default=str(ROOT.parent / "shared" / "anchors"))
+    ap.add_argument("--windows", type=int, default=520)
+    ap.add_argument("--data", default=str(ROOT / "results/benchmarks/stability_lowtex.h5"))
+    ap.add_argument("--threads", type=int, default=2)
+    args = ap.parse_args()
+    torch.set_num_threads(args.threads)
+    data = Path(args.data)
+    if not data.is_file():
+        t0 = time.perf_counter()
+        simulate(data, args.windows)
+        print(f"simulated {args.windows} windows in {time.perf_counter() - t0:.0f} s -> {data}")
+    with h5py.File(data, "r") as f:
+        vox, logr = f["voxels"][()].astype(np.float32), f["log_radiance"][()]
+    methods = {Path(p).stem if len(args.ours) > 1 else "ours": p for p in args.ours}
+    for name, file in (("FireNet", "firenet_1000.pth.tar"), ("FireNet+", "firenet_plus.pth")):
+        if (Path(args.anchors) / "weights" / file).is_file():
+            methods[name] = str(Path(args.anchors) / "weights" / file)
+    print(f"\n{len(vox)} windows; error fraction = pixels with |error| > 0.3 after per-frame "
+          "1-99 % rescaling; windows >= 100\n")  # fmt: skip
+    print("| method | max error fraction | mean error fraction | mean SSIM |")
+    print("| --- | --- | --- | --- |")
+    for name, ckpt in methods.items():
+        frames = NetworkReconstructor(load_checkpoint(ckpt).net, voxel_clip=3.0).run(vox)
+        frac, ssim = [], []
+        for k in range(100, len(frames)):
+            p = normalize_intensity(frames[k])
+            g = normalize_intensity(logr[k])
+            frac.append(float(np.mean(np.abs(p - g) > 0.3)))
+            ssim.append(image_metrics(p, g)["ssim"])
+        print(f"| {name} | {max(frac):.2%} | {np.mean(frac):.2%} | {np.mean(ssim):.3f} |")
+
+
+if __name__ == "__main__":
+    main()
