@@ -45,10 +45,10 @@ def scene_spec() -> dict:
     loop = [([0.0, -1.5, 1.4], [0.5, 2.0, 1.0]), ([1.2, -1.0, 1.5], [-0.5, 2.5, 0.9]),
             ([0.4, 0.2, 1.3], [-1.5, 2.5, 1.2]), ([-1.0, -0.4, 1.6], [0.5, 3.0, 0.8]),
             ([-1.2, -1.4, 1.4], [1.5, 2.0, 1.1])]  # fmt: skip
-    keys = [{"position": p, "look_at": q} for p, q in loop * 6 + loop[:1]]
+    keys = [{"position": p, "look_at": q} for p, q in loop * 12 + loop[:1]]
     return {
         "name": "lowtex_room",
-        "duration": 60.0,
+        "duration": 120.0,
         "shading": {"direction": [0.4, -0.6, 1.0], "ambient": 0.6},
         "materials": {
             "wall": {"texture": {**plain, "low": 0.55, "high": 0.62, "seed": 1}, "tile_m": 3.0},
@@ -74,12 +74,12 @@ def simulate(path: Path, windows: int) -> None:
     render = RenderConfig(
         camera={"width": W, "height": H, "fx": F, "fy": F, "cx": W / 2, "cy": H / 2}
     )
-    scene = build_scene(scene_spec(), {"speed": 1.0, "dynamic_range": 1.0, "duration": 60.0,
+    scene = build_scene(scene_spec(), {"speed": 1.0, "dynamic_range": 1.0, "duration": 120.0,
                                        "seed": 0}, render, None)  # fmt: skip
     renderer = Renderer(scene, supersample=2)
     cam = EventCameraConfig(contrast_pos=0.2, contrast_neg=0.2, contrast_sigma=0.03,
                             noise_rate_hz=0.1, hot_pixel_fraction=0.0, chunk_events=4096)  # fmt: skip
-    conf = TrainDataConfig(width=W, height=H, windows_per_sequence=windows, max_duration_s=60.0,
+    conf = TrainDataConfig(width=W, height=H, windows_per_sequence=windows, max_duration_s=120.0,
                            max_renders=10**9)  # fmt: skip
     n = int(round(0.278 * W * H))
     seq = run_sequence(conf, "heldout", 0, np.random.default_rng(0), renderer.radiance_at, cam, n,

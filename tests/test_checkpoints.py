@@ -175,8 +175,26 @@ def test_bad_checkpoints_raise_clear_errors(tmp_path):
     meta["arch"] = "firenet_plus"
     meta["hparams"] = {}
     (tmp_path / "m.json").write_text(json.dumps(meta))
-    with pytest.raises(CheckpointError, match="do not fit"):
+    with pytest.raises(CheckpointError, match="but the weights in m.pt are firenet"):
         load_checkpoint(tmp_path / "m.pt")
+    # a JSON asking for a huge network is refused before anything is built from it
+    meta["arch"], meta["hparams"] = "firenet", {"base_channels": 200000}
+    (tmp_path / "m.json").write_text(json.dumps(meta))
+    with pytest.raises(CheckpointError, match="base_channels"):
+        load_checkpoint(tmp_path / "m.pt")
+
+
+def test_decompression_bomb_checkpoint_is_refused_unread(tmp_path):
+    import zipfile
+
+    from evdense.recon import checkpoints
+
+    bomb = tmp_path / "bomb.pt"
+    with zipfile.ZipFile(bomb, "w", zipfile.ZIP_DEFLATED) as z:
+        z.writestr("archive/data/0", b"\0" * (checkpoints.MAX_CHECKPOINT_BYTES + 1))
+    assert bomb.stat().st_size < 2 << 20
+    with pytest.raises(CheckpointError, match="unpacks to"):
+        load_checkpoint(bomb)
 
 
 # ---------------------------------------------------------------------------------------------

@@ -284,3 +284,23 @@ def test_real_davis_calibration_goes_to_colmap_opencv(anchors):
         SfmConfig(calibration=str(calib), refine_intrinsics=True), threads=1, width=346, height=260
     )
     assert opts.mapping.ba_refine_focal_length and opts.mapping.ba_refine_extra_params
+
+
+def test_recorded_failure_keeps_its_diagnostics_inside_and_no_partial(tmp_path):
+    import json
+
+    from evdense.sfm import SfmError, sfm_failed, write_failed_sfm
+
+    out = tmp_path / "sfm" / "events"
+    work = out.with_name("events.partial")
+    (work / "mapper").mkdir(parents=True)
+    (work / "diagnostics.json").write_text(json.dumps({"verified_pairs": 3}))
+    err = SfmError(f"2 of 40 frames registered. Diagnostics: {work / 'diagnostics.json'}",
+                   work / "diagnostics.json")  # fmt: skip
+    write_failed_sfm(out, err)
+    assert sfm_failed(out) and not work.exists()
+    assert sorted(p.name for p in out.iterdir()) == ["diagnostics.json", "stats.json"]
+    stats = json.loads((out / "stats.json").read_text())
+    assert str(out / "diagnostics.json") in stats["error"] and ".partial" not in stats["error"]
+    assert json.loads((out / "diagnostics.json").read_text()) == {"verified_pairs": 3}
+    assert [p.name for p in out.parent.iterdir()] == ["events"]

@@ -56,8 +56,36 @@ def validate_config(
     if errors:
         e = errors[0]
         key = ".".join(str(p) for p in e.path) or "(top level)"
-        raise ConfigError(f"config key '{key}': {e.message}")
+        if "propertyNames" in list(e.schema_path):
+            key, msg = (
+                f"{key}.{e.instance}",
+                "not a valid name: use letters, digits, _ . - (it becomes a folder name)",
+            )
+        else:
+            msg = e.message
+        raise ConfigError(f"config key '{key}': {msg}")
+    if not all_datasets(config):
+        raise ConfigError(
+            "config key 'datasets': no datasets to reconstruct (name at least one under "
+            "`datasets`, or give a `sweep`)"
+        )
+    sort_keys_in_place(config)
     return config
+
+
+def sort_keys_in_place(d: dict[str, Any]) -> None:
+    """Order the keys of ``d`` and of every mapping inside it (lists keep their order), so that
+    two configs that differ only in key order compare equal as text (Snakemake's rule params)."""
+    items = sorted(d.items(), key=lambda kv: str(kv[0]))
+    d.clear()
+    for k, v in items:
+        if isinstance(v, dict):
+            sort_keys_in_place(v)
+        elif isinstance(v, list):
+            for x in v:
+                if isinstance(x, dict):
+                    sort_keys_in_place(x)
+        d[k] = v
 
 
 def load_config(path: str | Path, check: bool = True) -> dict[str, Any]:

@@ -785,7 +785,8 @@ def run_sfm(
 
 def write_failed_sfm(out_dir: str | Path, error: SfmError) -> Path:
     """Write an SfM output folder that records a failure: ``stats.json`` with ``failed: true``,
-    the error message and the diagnostics, and nothing else (no model, no trajectory)."""
+    the error message and the diagnostics, ``diagnostics.json``, and nothing else (no model, no
+    trajectory); the failed run's ``<out_dir>.partial`` working folder is removed."""
     out_dir = Path(out_dir)
     diagnostics: dict[str, Any] = {}
     if error.diagnostics_path is not None and Path(error.diagnostics_path).exists():
@@ -794,9 +795,13 @@ def write_failed_sfm(out_dir: str | Path, error: SfmError) -> Path:
     if tmp.exists():
         shutil.rmtree(tmp)
     tmp.mkdir(parents=True)
+    message = str(error)
+    if error.diagnostics_path is not None:  # the diagnostics move into the recorded folder
+        message = message.replace(str(error.diagnostics_path), str(out_dir / "diagnostics.json"))
+        _write_json(tmp / "diagnostics.json", diagnostics)
     stats = {
         "failed": True,
-        "error": str(error),
+        "error": message,
         "num_registered": 0,
         "registered_fraction": 0.0,
         "diagnostics": diagnostics,
@@ -805,7 +810,10 @@ def write_failed_sfm(out_dir: str | Path, error: SfmError) -> Path:
     if out_dir.exists():
         shutil.rmtree(out_dir)
     tmp.rename(out_dir)
-    log.warning("SfM failed, recorded in %s: %s", out_dir, error)
+    work = out_dir.with_name(out_dir.name + ".partial")  # the failed run's working folder
+    if work.exists():
+        shutil.rmtree(work)
+    log.warning("SfM failed, recorded in %s: %s", out_dir, message)
     return out_dir
 
 

@@ -1,14 +1,24 @@
 """The canonical event file: one HDF5 file per recording, read in bounded memory.
 
-Layout (format ``evdense-events``, version 1)::
+Layout (format ``evdense-events``, version 2)::
 
-    /events/t   int64   timestamps in microseconds, non-decreasing
-    /events/x   uint16  column, 0 <= x < width
-    /events/y   uint16  row, 0 <= y < height
-    /events/p   int8    polarity, -1 or +1
-    /t_index    int64   t_index[k] = index of the first event with t >= t_offset + k * index_step_us
+    /events/t     int64   timestamps in microseconds, non-decreasing
+    /events/x     uint16  column, 0 <= x < width
+    /events/y     uint16  row, 0 <= y < height
+    /events/p     int8    polarity, -1 or +1
+    /t_index_key  int64   sorted time buckets k that hold events (bucket k: t in
+                          [t_offset + k * step, t_offset + (k + 1) * step), step = index_step_us)
+    /t_index      int64   t_index[j] = index of the first event of bucket t_index_key[j]
     attrs: format, version, width, height, time_unit ("us"), num_events, t_start_us, t_end_us,
            t_offset_us, index_step_us, provenance (JSON string), and any extra attributes given
+
+The time index is sparse: one entry per millisecond that holds events, so its size follows the
+number of events, never the time span (three events an hour apart take three entries). Version 1
+files (a dense ``t_index`` of one entry per millisecond, no ``t_index_key``) are still read.
+
+Reading checks what the pipeline relies on, chunk by chunk: timestamps non-decreasing,
+coordinates on the sensor, polarity -1 or +1 (:class:`~evdense.errors.InputError` naming the file
+and the event otherwise), so a corrupted file stops a run instead of flowing through it.
 
 Datasets are chunked and compressed (Blosc LZ4 with byte shuffle by default, through hdf5plugin:
 about 4 bytes per event, read at over 100 M events/s; other HDF5 readers need ``import hdf5plugin``
@@ -29,12 +39,16 @@ import h5py
 import hdf5plugin
 import numpy as np
 
+from evdense.errors import InputError
+
 FORMAT_NAME = "evdense-events"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
 CHUNK_EVENTS = 1 << 18
 INDEX_STEP_US = 1000
 
 _DTYPES = {"t": np.int64, "x": np.uint16, "y": np.uint16, "p": np.int8}
+MAX_SENSOR_SIDE = 65535
+"""Largest sensor side in pixels (coordinates are stored as uint16)."""
 
 
 def compression_options(name: str | None) -> dict[str, Any]:
@@ -111,6 +125,9 @@ class EventWriter:
     ) -> None:
         self.path = Path(path)
         self.width, self.height = int(width), int(height)
+        if not (0 < self.width <= MAX_SENSOR_SIDE and 0 < self.height <= MAX_SENSOR_SIDE):
+            raise ValueError(f"{self.path}: sensor size {self.width}x{self.height} out of range "
+                             f"(1 to {MAX_SENSOR_SIDE} pixels a side)")  # fmt: skip
         self._tmp = self.path.with_name(self.path.name + ".partial")
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self._f = h5py.File(self._tmp, "w")
@@ -129,8 +146,9 @@ class EventWriter:
         self._t_first: int | None = None
         self._t_last: int | None = None
         self._t_offset = t_offset_us
+        self._index_key: list[np.ndarray] = []
         self._index: list[np.ndarray] = []
-        self._next_boundary = 0  # next index entry k to fill
+        self._last_bucket: int | None = None
         self._provenance = provenance or {}
         self._attrs = attrs or {}
         self._closed = False
@@ -173,15 +191,15 @@ class EventWriter:
             ds = self._ds[k]
             ds.resize((self._n + n,))
             ds[self._n :] = getattr(events, k)
-        # Index entries for every boundary up to the last timestamp of this batch: the index of
-        # the first event at or after the boundary can only be known once a later event exists.
-        last_k = (int(t[-1]) - self._t_offset) // INDEX_STEP_US
-        if last_k >= self._next_boundary:
-            bounds = self._t_offset + INDEX_STEP_US * np.arange(
-                self._next_boundary, last_k + 1, dtype=np.int64
-            )
-            self._index.append(self._n + np.searchsorted(t, bounds, side="left"))
-            self._next_boundary = last_k + 1
+        # Sparse index: the first event of every time bucket that holds events.
+        buckets = (t - self._t_offset) // INDEX_STEP_US
+        new = np.empty(n, bool)
+        new[0] = self._last_bucket is None or buckets[0] != self._last_bucket
+        np.not_equal(buckets[1:], buckets[:-1], out=new[1:])
+        first = np.flatnonzero(new)
+        self._index_key.append(buckets[first].astype(np.int64))
+        self._index.append(self._n + first.astype(np.int64))
+        self._last_bucket = int(buckets[-1])
         self._n += n
         self._t_last = int(t[-1])
 
@@ -189,9 +207,9 @@ class EventWriter:
         """Write the index and attributes, and move the file to its final name."""
         if self._closed:
             return self.path
-        idx = np.concatenate(self._index) if self._index else np.zeros(0, dtype=np.int64)
-        # One entry past the end so that every time range has an upper bound.
-        idx = np.append(idx, self._n).astype(np.int64)
+        keys = np.concatenate(self._index_key) if self._index_key else np.zeros(0, np.int64)
+        idx = np.concatenate(self._index) if self._index else np.zeros(0, np.int64)
+        self._f.create_dataset("t_index_key", data=keys, **compression_options("gzip"))
         self._f.create_dataset("t_index", data=idx, **compression_options("gzip"))
         a = self._f.attrs
         a["format"] = FORMAT_NAME
@@ -255,15 +273,40 @@ class EventFile:
                 f"{self.path}: not an evdense event file (format attribute {a.get('format')!r}); "
                 "convert it with `evdense convert`"
             )
-        self.width = int(a["width"])
-        self.height = int(a["height"])
-        self.num_events = int(a["num_events"])
-        self.t_start_us = int(a["t_start_us"])
-        self.t_end_us = int(a["t_end_us"])
-        self._t_offset = int(a["t_offset_us"])
-        self._step = int(a["index_step_us"])
-        self._index = self._f["t_index"][()]
-        self._ds = {k: self._f["events"][k] for k in "txyp"}
+        try:
+            self.version = int(a.get("version", 1))
+            if self.version not in (1, 2):
+                raise ValueError(f"format version {self.version} (this evdense reads 1 and 2)")
+            self.width = int(a["width"])
+            self.height = int(a["height"])
+            self.num_events = int(a["num_events"])
+            self.t_start_us = int(a["t_start_us"])
+            self.t_end_us = int(a["t_end_us"])
+            self._t_offset = int(a["t_offset_us"])
+            self._step = int(a["index_step_us"])
+            self._ds = {k: self._f["events"][k] for k in "txyp"}
+            lens = {k: len(d) for k, d in self._ds.items()}
+            if set(lens.values()) != {self.num_events}:
+                raise ValueError(
+                    f"event columns hold {lens} entries, num_events says {self.num_events}"
+                )
+            if not (0 < self.width <= MAX_SENSOR_SIDE and 0 < self.height <= MAX_SENSOR_SIDE):
+                raise ValueError(f"sensor size {self.width}x{self.height} out of range")
+            if self._step <= 0:
+                raise ValueError(f"index_step_us {self._step} must be > 0")
+            if self.version == 1:
+                self._keys = None
+                self._index = self._f["t_index"][()]
+            else:
+                self._keys = self._f["t_index_key"][()]
+                self._index = self._f["t_index"][()]
+                if len(self._keys) != len(self._index) or np.any(np.diff(self._keys) <= 0):
+                    raise ValueError("damaged time index")
+        except (KeyError, ValueError, TypeError, OSError) as e:
+            self._f.close()
+            raise InputError(self.path, f"damaged evdense event file ({e})") from e
+        self._last_t: int | None = None
+        self._last_stop = -1
 
     def __enter__(self) -> EventFile:
         return self
@@ -304,10 +347,38 @@ class EventFile:
         return out
 
     def read(self, start: int = 0, stop: int | None = None) -> Events:
-        """Events ``start:stop`` by index."""
+        """Events ``start:stop`` by index (checked: see the module docstring)."""
         stop = self.num_events if stop is None else min(stop, self.num_events)
         start = max(0, min(start, stop))
-        return Events(*(self._ds[k][start:stop] for k in "txyp"))
+        try:
+            ev = Events(*(self._ds[k][start:stop] for k in "txyp"))
+        except (OSError, ValueError) as e:
+            raise InputError(self.path, f"cannot read events {start}:{stop} ({e})") from e
+        self._check(ev, start)
+        return ev
+
+    def _check(self, ev: Events, start: int) -> None:
+        if len(ev) == 0:
+            return
+        bad = np.flatnonzero(np.diff(ev.t) < 0)
+        if len(bad):
+            i = start + int(bad[0]) + 1
+            raise InputError(self.path, f"event {i}: time goes backwards "
+                             f"({int(ev.t[bad[0]])} -> {int(ev.t[bad[0] + 1])} us); the file is damaged")  # fmt: skip
+        off = (ev.x >= self.width) | (ev.y >= self.height) | ((ev.p != 1) & (ev.p != -1))
+        if off.any():
+            i = int(np.argmax(off))
+            raise InputError(self.path, f"event {start + i}: x={int(ev.x[i])} y={int(ev.y[i])} "
+                             f"p={int(ev.p[i])} is not on the {self.width}x{self.height} sensor "
+                             "with polarity -1/+1; the file is damaged")  # fmt: skip
+        if (
+            start > 0
+            and self._last_t is not None
+            and self._last_stop == start
+            and ev.t[0] < self._last_t
+        ):
+            raise InputError(self.path, f"event {start}: time goes backwards; the file is damaged")
+        self._last_t, self._last_stop = int(ev.t[-1]), start + len(ev)
 
     def read_t(self, start: int = 0, stop: int | None = None) -> np.ndarray:
         """Timestamps only, ``start:stop`` by index (us)."""
@@ -317,12 +388,21 @@ class EventFile:
     def index_at(self, t_us: int | float) -> int:
         """Index of the first event with ``t >= t_us``."""
         k = (int(np.ceil(t_us)) - self._t_offset) // self._step
-        if k < 0:
-            return 0
-        if k >= len(self._index) - 1:
-            lo, hi = int(self._index[-2]) if len(self._index) > 1 else 0, self.num_events
+        if self._keys is None:  # version 1: dense index, one entry per step, one past the end
+            if k < 0:
+                return 0
+            if k >= len(self._index) - 1:
+                lo, hi = int(self._index[-2]) if len(self._index) > 1 else 0, self.num_events
+            else:
+                lo, hi = int(self._index[k]), int(self._index[k + 1])
         else:
-            lo, hi = int(self._index[k]), int(self._index[k + 1])
+            j = int(np.searchsorted(self._keys, k, side="left"))
+            if j == len(self._keys):
+                return self.num_events
+            if self._keys[j] > k:  # no event in bucket k: the next bucket's first event
+                return int(self._index[j])
+            lo = int(self._index[j])
+            hi = int(self._index[j + 1]) if j + 1 < len(self._index) else self.num_events
         if lo >= hi:
             return lo
         return lo + int(np.searchsorted(self._ds["t"][lo:hi], t_us, side="left"))

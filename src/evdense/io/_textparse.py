@@ -29,7 +29,9 @@ BAD_INT = 2
 MISSING_FIELD = 3
 EXTRA_FIELD = 4
 OUT_OF_RANGE = 5
+NO_ROOM = 6
 ERROR_NAMES = {
+    NO_ROOM: "more lines than the parser's buffers hold (internal limit)",
     OUT_OF_RANGE: "integer out of range (x, y need 31 bits, p 7 bits)",
     BAD_TIME: "cannot read the timestamp",
     BAD_INT: "cannot read an integer column",
@@ -40,15 +42,17 @@ ERROR_NAMES = {
 
 @njit(cache=True, nogil=True)
 def parse_block(
-    buf, t_out, x_out, y_out, p_out, skip_out, int_mult, frac_digits
+    buf, t_out, x_out, y_out, p_out, skip_at, skip_count, int_mult, frac_digits
 ):  # pragma: no cover
     """Parse lines of ``buf`` (uint8) into ``t_out`` (int64), ``x_out``/``y_out`` (int32), ``p_out`` (int8).
 
-    Output arrays need one slot per line; ``len(buf) // 8 + 1`` always suffices (a shortest line,
-    "0 0 0 0\n", has 8 bytes). The last line may lack its newline.
-    Lines that are empty or start with ``#`` or ``%`` are skipped; ``skip_out[k]`` records the
-    event count at the k-th skipped line (to map events back to line numbers).
-    Returns ``(n_events, n_lines, n_skipped, error_code, error_line)`` (0-based line in the block).
+    The event arrays need one slot per event line; ``len(buf) // 8 + 1`` always suffices (a
+    shortest event line, "0 0 0 0\n", has 8 bytes; the last line may lack its newline).
+    Lines that are empty or start with ``#`` or ``%`` are skipped and recorded as runs (to map
+    events back to line numbers): run ``r`` is ``skip_count[r]`` skipped lines met when
+    ``skip_at[r]`` events had been read. Runs are separated by events, so ``len(buf) // 8 + 2``
+    slots suffice for them too; every write is bounds-checked all the same (``NO_ROOM``).
+    Returns ``(n_events, n_lines, n_runs, error_code, error_line)`` (0-based line in the block).
     """
     n = len(buf)
     i = 0
@@ -66,10 +70,18 @@ def parse_block(
             while i < n and buf[i] != 10:
                 i += 1
             i += 1
-            skip_out[ns] = ne
-            ns += 1
+            if ns > 0 and skip_at[ns - 1] == ne:
+                skip_count[ns - 1] += 1
+            else:
+                if ns >= len(skip_at):
+                    return ne, nl, ns, NO_ROOM, nl
+                skip_at[ns] = ne
+                skip_count[ns] = 1
+                ns += 1
             nl += 1
             continue
+        if ne >= len(t_out):
+            return ne, nl, ns, NO_ROOM, nl
         # timestamp: digits [. digits]
         ip = np.int64(0)
         nd = 0

@@ -120,6 +120,10 @@ def seconds_to_us(ts: np.ndarray, path: Path, start: int = 0) -> np.ndarray:
     if bad.any():
         i = int(np.argmax(bad))
         raise ValueError(f"{path}: timestamp of event {start + i} is {ts[i]} (not a finite number)")
+    bad = np.abs(ts) > 2.0**53 * 1e-6
+    if bad.any():
+        i = int(np.argmax(bad))
+        raise ValueError(f"{path}: timestamp of event {start + i} is {ts[i]} s (out of range)")
     return np.rint(ts * 1e6).astype(np.int64)
 
 

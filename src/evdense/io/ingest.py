@@ -26,12 +26,14 @@ from typing import Any, Literal
 import numpy as np
 
 from evdense.camera import Camera, load_camera
+from evdense.errors import as_input_error
 from evdense.events.container import EventWriter
 from evdense.io.base import DEFAULT_CHUNK_EVENTS, Recording
 from evdense.io.detect import open_recording
 from evdense.io.validate import (
     ValidationConfig,
     ValidationReport,
+    check_sensor_size,
     infer_sensor_size,
     validate_stream,
 )
@@ -105,6 +107,8 @@ def _sensor_size(
 ) -> tuple[int, int, str]:
     if (width is None) != (height is None):
         raise ValueError(f"{rec.path}: give both width and height, or neither")
+    if rec.width is not None or rec.height is not None:
+        check_sensor_size(rec.width, rec.height, rec.path, "stated by the file")
     file_size = (rec.width, rec.height) if rec.width and rec.height else None
     if width is not None and height is not None:
         if file_size and file_size != (width, height):
@@ -115,7 +119,7 @@ def _sensor_size(
                 width,
                 height,
             )
-        return int(width), int(height), "config"
+        return (*check_sensor_size(width, height, rec.path, "given in the config"), "config")
     if file_size:
         return file_size[0], file_size[1], "file"
     if calibration is not None:
@@ -125,8 +129,10 @@ def _sensor_size(
             calibration.width,
             calibration.height,
         )
-        return calibration.width, calibration.height, "calibration"
-    w, h = infer_sensor_size(rec.iter_events(), rec.path)
+        w, h = check_sensor_size(calibration.width, calibration.height, rec.path, "calibration")
+        return w, h, "calibration"
+    w, h = check_sensor_size(*infer_sensor_size(rec.iter_events(), rec.path), rec.path,
+                             "inferred from the coordinates")  # fmt: skip
     log.warning(
         "%s: the file does not state its sensor size; inferred %dx%d from the largest coordinates "
         "(set the dataset's width/height to be sure)",
@@ -225,6 +231,45 @@ def ingest_recording(
     cfg = config or IngestConfig()
     recording = Path(recording)
     events_out = Path(events_out)
+    # The events go to a staged name first and get their final name only when the side data
+    # (frames, calibration, trajectory) were read too: a failure leaves nothing complete-looking.
+    staged = events_out.with_name(events_out.name + ".staged.partial")
+    try:
+        result = _ingest(recording, events_out, staged, conventional_dir, gt_dir, fmt, calibration,
+                         width, height, cfg, reader_options)  # fmt: skip
+    except (KeyboardInterrupt, MemoryError):
+        staged.unlink(missing_ok=True)
+        raise
+    except Exception as e:
+        staged.unlink(missing_ok=True)
+        cal_path = Path(calibration) if calibration else None
+        if cal_path is not None and str(cal_path) in str(e):
+            raise as_input_error(cal_path, e) from e
+        raise as_input_error(recording, e) from e
+    os.replace(staged, events_out)
+    if manifest_out is not None:
+        manifest_out = Path(manifest_out)
+        manifest_out.parent.mkdir(parents=True, exist_ok=True)
+        _atomic_write(
+            manifest_out,
+            lambda p: p.write_text(json.dumps(asdict(result), indent=2, default=str) + "\n"),
+        )
+    return result
+
+
+def _ingest(
+    recording: Path,
+    events_out: Path,
+    staged: Path,
+    conventional_dir: str | Path | None,
+    gt_dir: str | Path | None,
+    fmt: str,
+    calibration: str | Path | None,
+    width: int | None,
+    height: int | None,
+    cfg: IngestConfig,
+    reader_options: dict[str, Any] | None,
+) -> IngestResult:
     cal = _load_calibration(calibration, width, height) if calibration else None
     with open_recording(
         recording,
@@ -261,7 +306,7 @@ def ingest_recording(
         batches = validate_stream(rec.iter_events(), rec.path, w, h, cfg.validation(), report)
         t0 = t1 = 0
         with EventWriter(
-            events_out, w, h, provenance=provenance, attrs=attrs, compression=cfg.compression
+            staged, w, h, provenance=provenance, attrs=attrs, compression=cfg.compression
         ) as writer:
             for ev in progress(batches, desc=f"ingest {recording.name} (batches)"):
                 if writer.num_events == 0:
@@ -318,11 +363,4 @@ def ingest_recording(
                     len(traj.t),
                     result.trajectory,
                 )
-    if manifest_out is not None:
-        manifest_out = Path(manifest_out)
-        manifest_out.parent.mkdir(parents=True, exist_ok=True)
-        _atomic_write(
-            manifest_out,
-            lambda p: p.write_text(json.dumps(asdict(result), indent=2, default=str) + "\n"),
-        )
     return result

@@ -55,22 +55,29 @@ def read_header(path: Path) -> tuple[list[str], int]:
 
 
 def header_sensor_size(lines: list[str]) -> tuple[int | None, int | None]:
-    """Sensor ``(width, height)`` from header lines, or Nones."""
+    """Sensor ``(width, height)`` from header lines, or Nones; ``ValueError`` on a malformed size."""
     w = h = None
     for line in lines:
-        m = re.match(r"(?i)geometry\s+(\d+)\s*x\s*(\d+)", line)
-        if m:
+        if re.match(r"(?i)geometry\b", line):
+            m = re.fullmatch(r"(?i)geometry\s+(\d+)\s*x\s*(\d+)", line)
+            if not m:
+                raise ValueError(f"header line {line!r}: expected 'geometry <width>x<height>'")
             w, h = int(m.group(1)), int(m.group(2))
         m = re.match(r"(?i)format\s+(\S+)", line)
         if m:
             for kv in m.group(1).split(";"):
                 k, _, v = kv.partition("=")
-                if k.lower() == "width" and v.isdigit():
-                    w = int(v)
-                elif k.lower() == "height" and v.isdigit():
-                    h = int(v)
-        m = re.match(r"(?i)(width|height)\s+(\d+)$", line)
+                if k.lower() in ("width", "height"):
+                    if not v.isdigit():
+                        raise ValueError(f"header line {line!r}: {k} {v!r} is not a size")
+                    if k.lower() == "width":
+                        w = int(v)
+                    else:
+                        h = int(v)
+        m = re.match(r"(?i)(width|height)\s+(\S+)$", line)
         if m:
+            if not m.group(2).isdigit():
+                raise ValueError(f"header line {line!r}: {m.group(2)!r} is not a size")
             if m.group(1).lower() == "width":
                 w = int(m.group(2))
             else:

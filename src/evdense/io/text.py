@@ -161,8 +161,11 @@ class RpgTextRecording(Recording):
             x = np.empty(cap, np.int32)
             y = np.empty(cap, np.int32)
             p = np.empty(cap, np.int8)
-            skips = np.empty(cap, np.int64)
-            ne, nl, ns, err, err_line = parse_block(block, t, x, y, p, skips, int_mult, frac)
+            skip_at = np.empty(cap + 1, np.int64)
+            skip_count = np.empty(cap + 1, np.int64)
+            ne, nl, ns, err, err_line = parse_block(
+                block, t, x, y, p, skip_at, skip_count, int_mult, frac
+            )
             if err != OK:
                 lines = bytes(block).split(b"\n")
                 text = lines[err_line].decode("ascii", errors="replace")
@@ -186,7 +189,7 @@ class RpgTextRecording(Recording):
                     y[:ne],
                     p[:ne],
                     start=start,
-                    locate=_line_locator(line0, skips[:ns].copy()),
+                    locate=_line_locator(line0, skip_at[:ns].copy(), skip_count[:ns].copy()),
                 )
             start += ne
             line0 += nl
@@ -233,6 +236,13 @@ class RpgTextRecording(Recording):
             else:
                 assert self._folder is not None
                 src = self._folder / rel
+                if Path(rel).is_absolute() or not src.resolve().is_relative_to(
+                    self._folder.resolve()
+                ):
+                    raise ValueError(
+                        f"{self._folder / 'images.txt'}: line {k}: {rel!r} is outside the "
+                        "recording's folder (image paths must be relative and stay inside it)"
+                    )
                 if not src.exists():
                     raise ValueError(
                         f"{self._folder / 'images.txt'}: line {k}: {src} does not exist"
@@ -259,12 +269,14 @@ class RpgTextRecording(Recording):
         return Trajectory(t, T, source=str(f))
 
 
-def _line_locator(line0: int, skips: np.ndarray):
-    """Map a batch event index to its 1-based line number, given where skipped lines were."""
+def _line_locator(line0: int, skip_at: np.ndarray, skip_count: np.ndarray):
+    """Map a batch event index to its 1-based line number, given the runs of skipped lines."""
+    cum = np.cumsum(skip_count)
 
     def locate(i: int) -> str:
         # skipped lines recorded at event count c come before event c
-        before = int(np.searchsorted(skips, i, side="right"))
+        r = int(np.searchsorted(skip_at, i, side="right"))
+        before = int(cum[r - 1]) if r else 0
         return f"line {line0 + i + before + 1}"
 
     return locate

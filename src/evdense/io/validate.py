@@ -8,6 +8,11 @@ that is logged with its count. Nothing is changed silently.
   that mixes 0 and -1, is an error.
 - Coordinates: negative values are always an error; values outside the sensor are an error
   (``out_of_bounds="error"``) or dropped and counted (``"drop"``).
+- Timestamps: integer microseconds in ``[0, MAX_TIME_US]`` (2^53 us, about 285 years: every
+  such value is exact in a float64 too); a negative, unsigned-overflowed or absurd timestamp is an
+  error.
+- Sensor size: each side in ``[1, MAX_SENSOR_SIDE]`` (8192 pixels; the largest event sensors have
+  1280 x 960), checked before anything is allocated from it.
 - Time order: with ``unsorted="error"`` the first step back in time is an error. With ``"sort"``
   (default) events are re-ordered through a buffer that holds the last ``reorder_window_us``
   microseconds of the stream, so memory stays bounded by the event rate times the window. An
@@ -30,6 +35,38 @@ from evdense.io.base import RawEvents
 from evdense.log import get_logger
 
 log = get_logger("io")
+
+MAX_TIME_US = 1 << 53
+"""Largest timestamp accepted, microseconds."""
+MAX_SENSOR_SIDE = 8192
+"""Largest sensor width or height accepted, pixels."""
+
+
+def check_sensor_size(
+    width: object, height: object, path: str | Path, source: str
+) -> tuple[int, int]:
+    """``(width, height)`` as ints when both are in ``[1, MAX_SENSOR_SIDE]``, else ``InputError``."""
+    from evdense.errors import InputError
+
+    try:
+        w, h = int(width), int(height)  # type: ignore[call-overload]
+    except (TypeError, ValueError, OverflowError) as e:
+        raise InputError(
+            path, f"sensor size {width!r} x {height!r} ({source}) is not a pair of integers"
+        ) from e
+    if not (1 <= w <= MAX_SENSOR_SIDE and 1 <= h <= MAX_SENSOR_SIDE):
+        raise InputError(path, f"sensor size {w} x {h} ({source}) is out of range: each side must be "
+                         f"1 to {MAX_SENSOR_SIDE} pixels")  # fmt: skip
+    return w, h
+
+
+def _times(raw: RawEvents, path: Path) -> None:
+    t = raw.t
+    bad = (t < 0) | (t > MAX_TIME_US)
+    if bad.any():
+        i = int(np.argmax(bad))
+        raise ValueError(f"{path}: timestamp {int(t[i])} us at {raw.where(i)} is out of range "
+                         f"(0 to 2^53 us); the file is damaged or its time unit is wrong")  # fmt: skip
 
 
 @dataclass
@@ -231,6 +268,9 @@ def validate_stream(
         if n == 0:
             continue
         report.events_in += n
+        if raw.t.dtype != np.int64:
+            raise ValueError(f"{path}: timestamps are {raw.t.dtype}, expected int64 microseconds")
+        _times(raw, path)
         p = _polarity(raw, path, pol_state)
         keep = _bounds(raw, path, width, height, cfg, report)
         x, y, t = raw.x, raw.y, raw.t

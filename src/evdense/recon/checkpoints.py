@@ -106,6 +106,32 @@ def _unpickling_reason(e: Exception) -> str:
     return lines[0] if lines else repr(e)
 
 
+MAX_CHECKPOINT_BYTES = 512 << 20
+"""Largest checkpoint accepted, unpacked (the largest E2VID checkpoints are about 40 MB)."""
+
+
+def _check_unpacked_size(path: Path) -> None:
+    """Refuse a zip checkpoint that would unpack to more than :data:`MAX_CHECKPOINT_BYTES`
+    (torch stores tensors uncompressed; a deflated member is a decompression bomb)."""
+    import zipfile
+
+    size = path.stat().st_size
+    if not zipfile.is_zipfile(path):
+        if size > MAX_CHECKPOINT_BYTES:
+            raise CheckpointError(
+                f"{path}: {size} bytes, over the {MAX_CHECKPOINT_BYTES >> 20} MiB limit"
+            )
+        return
+    try:
+        with zipfile.ZipFile(path) as z:
+            total = sum(i.file_size for i in z.infolist())
+    except (zipfile.BadZipFile, OSError, ValueError) as e:
+        raise CheckpointError(f"{path}: not a readable torch checkpoint ({e})") from None
+    if total > MAX_CHECKPOINT_BYTES:
+        raise CheckpointError(f"{path}: unpacks to {total} bytes, over the "
+                              f"{MAX_CHECKPOINT_BYTES >> 20} MiB limit; refused")  # fmt: skip
+
+
 def safe_torch_load(path: str | Path) -> Any:
     """``torch.load`` with the weights-only unpickler plus the stand-ins above.
 
@@ -115,6 +141,7 @@ def safe_torch_load(path: str | Path) -> Any:
     path = Path(path)
     if not path.is_file():
         raise CheckpointError(f"{path}: no such checkpoint file")
+    _check_unpacked_size(path)
     try:
         with torch.serialization.safe_globals(_STAND_INS):
             return torch.load(path, map_location="cpu", weights_only=True)
@@ -268,6 +295,18 @@ def load_checkpoint(path: str | Path) -> LoadedCheckpoint:
                 f"{meta_path}: unknown arch {arch!r}; known: {', '.join(NETWORKS)}"
             )
         hparams = dict(meta.get("hparams", {}))
+        # the weights' own shapes bound what is built: a JSON asking for more is refused before
+        # anything is allocated from it
+        try:
+            arch_sd, hp_sd = infer_architecture(_tidy_state_dict(obj))
+        except CheckpointError as e:
+            raise CheckpointError(f"{path}: {e}") from None
+        wrong = {k: v for k, v in hparams.items() if k in hp_sd and hp_sd[k] != v}
+        if arch_sd != arch or wrong:
+            raise CheckpointError(
+                f"{meta_path}: says {arch} {hparams}, but the weights in {path.name} are "
+                f"{arch_sd} {hp_sd}"
+            )
         net = _build_and_load(path, obj, arch, hparams)
         return LoadedCheckpoint(net, arch, hparams, "evdense", dict(meta.get("provenance", {})))
 
