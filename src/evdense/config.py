@@ -64,11 +64,6 @@ def validate_config(
         else:
             msg = e.message
         raise ConfigError(f"config key '{key}': {msg}")
-    if not all_datasets(config):
-        raise ConfigError(
-            "config key 'datasets': no datasets to reconstruct (name at least one under "
-            "`datasets`, or give a `sweep`)"
-        )
     sort_keys_in_place(config)
     return config
 
@@ -140,8 +135,14 @@ def all_datasets(config: dict[str, Any]) -> dict[str, dict[str, Any]]:
 def check_config(config: dict[str, Any], base_dir: str | Path = ".") -> None:
     """Checks beyond the schema, for every dataset: the scene builds (synthetic) or the file exists (real).
 
-    Raises :class:`ConfigError` naming ``datasets.<name>.<key>``.
+    Raises :class:`ConfigError` naming ``datasets.<name>.<key>``, or ``datasets`` when there is
+    nothing to reconstruct.
     """
+    if not all_datasets(config):
+        raise ConfigError(
+            "config key 'datasets': no datasets to reconstruct (name at least one under "
+            "`datasets`, or give a `sweep`)"
+        )
     base_dir = Path(base_dir)
     built: set[str] = set()  # building a scene takes seconds: check each distinct one once
     for name, ds in all_datasets(config).items():
