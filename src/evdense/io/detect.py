@@ -1,7 +1,8 @@
 """Which format a recording is in (from its magic bytes first, its extension second), and opening it.
 
 Format names (the dataset key ``format`` and ``evdense convert --format``): ``auto``, ``rpg_text``,
-``e2vid_h5``, ``evdense``, ``aedat4``, ``rosbag``, ``evt2``, ``evt3``, ``prophesee_dat``, ``numpy``.
+``e2vid_h5``, ``evdense``, ``aedat4``, ``rosbag`` (ROS 1 and ROS 2), ``evt2``, ``evt3``,
+``prophesee_dat``, ``numpy``.
 """
 
 from __future__ import annotations
@@ -42,7 +43,12 @@ def detect_format(path: str | Path) -> str:
     if path.is_dir():
         if (path / "events.txt").exists():
             return "rpg_text"
-        raise ValueError(f"{path}: a folder without events.txt; give the recording file itself")
+        if (path / "metadata.yaml").exists():
+            return "rosbag"
+        raise ValueError(
+            f"{path}: a folder with neither events.txt nor a ROS 2 bag's metadata.yaml; "
+            "give the recording file itself"
+        )
     head = _head(path)
     ext = path.suffix.lower()
     if head.startswith(b"#!AER-DAT4"):
@@ -52,7 +58,9 @@ def detect_format(path: str | Path) -> str:
         raise ValueError(
             f"{path}: AEDAT {version} files are not supported (only AEDAT 4.0); convert with DV first"
         )
-    if head.startswith(b"#ROSBAG V2.0"):
+    if head.startswith(b"#ROSBAG V2.0") or head.startswith(b"\x89MCAP0\r\n"):
+        return "rosbag"
+    if head.startswith(b"SQLite format 3\x00") and ext == ".db3":
         return "rosbag"
     if head.startswith(b"#ROSBAG"):
         raise ValueError(f"{path}: unsupported ROS bag version {head[:13]!r}")

@@ -85,6 +85,31 @@ def header_sensor_size(lines: list[str]) -> tuple[int | None, int | None]:
     return w, h
 
 
+PLUGIN_SENSOR_SIZES = (
+    ("genx320", (320, 320)),
+    ("imx637", (640, 512)),
+    ("imx636", (1280, 720)),
+    ("gen41", (1280, 720)),
+    ("gen4", (1280, 720)),
+    ("gen31", (640, 480)),
+    ("gen3", (640, 480)),
+)
+"""Sensor size of a Metavision HAL plugin (``% plugin_name``), in the order they are matched, for
+the older headers that name the plugin but give no ``geometry``."""
+
+
+def plugin_sensor_size(lines: list[str]) -> tuple[int, int] | None:
+    """``(width, height)`` implied by a ``% plugin_name`` header line, or None."""
+    for line in lines:
+        m = re.match(r"(?i)plugin_name\s+(\S+)", line)
+        if m:
+            name = m.group(1).lower()
+            for key, size in PLUGIN_SENSOR_SIZES:
+                if key in name:
+                    return size
+    return None
+
+
 def header_encoding(lines: list[str]) -> str | None:
     """ "evt2" / "evt3" / "evt21" from ``% evt X`` or ``% format EVTX`` lines, else None."""
     for line in lines:
@@ -206,6 +231,11 @@ class _PropheseeBase(Recording):
         super().__init__(path, chunk_events)
         self.header, self.data_offset = read_header(self.path)
         self.width, self.height = header_sensor_size(self.header)
+        if self.width is None and self.height is None:
+            size = plugin_sensor_size(self.header)
+            if size is not None:
+                self.width, self.height = size
+                self.metadata["sensor_size_from"] = "plugin_name"
         size = self.path.stat().st_size
         self.data_bytes = size - self.data_offset
 

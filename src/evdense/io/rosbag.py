@@ -1,5 +1,9 @@
-"""ROS1 bags with ``dvs_msgs/EventArray`` (rpg_dvs_ros; also ``prophesee_event_msgs/EventArray``),
-read with the ``rosbags`` package, without ROS.
+"""ROS bags, read with the ``rosbags`` package, without ROS.
+
+Events: ``event_camera_msgs/EventPacket`` (today's ``metavision_driver`` and ``libcaer_driver``;
+:mod:`evdense.io.event_packets`) in ROS 1 bags and ROS 2 bags (a folder with ``metadata.yaml``
+and ``.mcap`` or sqlite3 ``.db3`` storage, or such a storage file alone), and the older
+``dvs_msgs/EventArray`` (rpg_dvs_ros; also ``prophesee_event_msgs/EventArray``) in ROS 1 bags.
 
 Events are decoded straight from the ROS1 serialisation (header, uint32 height, uint32 width,
 uint32 count, then 13-byte events ``uint16 x, uint16 y, uint32 secs, uint32 nsecs, uint8 polarity``)
@@ -12,6 +16,7 @@ that type exists, or the topic named in the reader's arguments.
 
 from __future__ import annotations
 
+import struct
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -19,6 +24,7 @@ import numpy as np
 
 from evdense.camera import Camera
 from evdense.io.base import DEFAULT_CHUNK_EVENTS, Frame, RawEvents, Recording, Trajectory
+from evdense.io.event_packets import EVENT_PACKET_TYPES, PacketDecoder, parse_event_packet
 from evdense.log import get_logger
 
 log = get_logger("io")
@@ -41,6 +47,90 @@ def dvs_typestore():
     return ts
 
 
+MCAP_MAGIC = b"\x89MCAP0\r\n"
+SQLITE_MAGIC = b"SQLite format 3\x00"
+MAX_CHUNK_BYTES = 256 << 20
+"""Largest uncompressed chunk accepted in a ROS 1 bag (rosbag's default chunks are 768 KiB)."""
+
+
+def is_ros2_bag(path: Path) -> bool:
+    """A ROS 2 bag folder (``metadata.yaml``) or storage file (``.mcap``, ``.db3``)."""
+    if path.is_dir():
+        return (path / "metadata.yaml").is_file()
+    with open(path, "rb") as f:
+        head = f.read(16)
+    return head.startswith(MCAP_MAGIC) or head.startswith(SQLITE_MAGIC)
+
+
+def _open_ros2(path: Path):
+    """A rosbags reader over a ROS 2 bag. A folder whose ``metadata.yaml`` leaves the storage
+    plugin empty (as some recorders write it) is read through its single storage file."""
+    from rosbags.rosbag2 import Reader, ReaderError
+
+    target = path
+    if path.is_dir():
+        import yaml
+
+        try:
+            meta = yaml.safe_load((path / "metadata.yaml").read_text())[
+                "rosbag2_bagfile_information"
+            ]
+            files = [Path(str(f)).name for f in meta["relative_file_paths"]]
+            storage = meta.get("storage_identifier") or ""
+        except (OSError, KeyError, TypeError, yaml.YAMLError) as e:
+            raise ValueError(f"{path / 'metadata.yaml'}: not a ROS 2 bag's metadata ({e})") from e
+        if not storage:
+            if len(files) != 1:
+                raise ValueError(f"{path / 'metadata.yaml'}: no storage plugin named and "
+                                 f"{len(files)} storage files")  # fmt: skip
+            target = path / files[0]  # a file name only: it stays inside the bag's folder
+    try:
+        reader = Reader(target)
+        reader.open()
+    except (ReaderError, FileNotFoundError) as e:
+        raise ValueError(f"{path}: not a readable ROS 2 bag ({e})") from e
+    return reader
+
+
+def check_rosbag1_records(path: Path) -> None:
+    """Walk the top-level records of a ROS 1 bag and check every length against the file, and every
+    chunk's stated uncompressed size against :data:`MAX_CHUNK_BYTES`, before ``rosbags`` reads
+    (and allocates from) them. ``ValueError`` naming the byte offset otherwise."""
+    size = path.stat().st_size
+    with open(path, "rb") as f:
+        if f.read(13) != b"#ROSBAG V2.0\n":
+            raise ValueError(f"{path}: not a ROS 1 (V2.0) bag")
+        pos = 13
+        while pos < size:
+            f.seek(pos)
+            head = f.read(4)
+            if len(head) < 4:
+                raise ValueError(f"{path}: truncated record header at byte offset {pos}")
+            (hlen,) = struct.unpack("<I", head)
+            if pos + 8 + hlen > size:
+                raise ValueError(f"{path}: record at byte offset {pos} claims a {hlen}-byte header, "
+                                 "beyond the end of the file")  # fmt: skip
+            header = f.read(hlen)
+            fields, i = {}, 0
+            while i + 4 <= hlen:
+                (flen,) = struct.unpack_from("<I", header, i)
+                if i + 4 + flen > hlen:
+                    raise ValueError(f"{path}: malformed record header at byte offset {pos}")
+                name, _, value = header[i + 4 : i + 4 + flen].partition(b"=")
+                fields[name] = value
+                i += 4 + flen
+            (dlen,) = struct.unpack("<I", f.read(4))
+            if pos + 8 + hlen + dlen > size:
+                raise ValueError(f"{path}: record at byte offset {pos} claims {dlen} data bytes, "
+                                 "beyond the end of the file")  # fmt: skip
+            if fields.get(b"op") == b"\x05" and len(fields.get(b"size", b"")) == 4:
+                (usize,) = struct.unpack("<I", fields[b"size"])
+                if usize > MAX_CHUNK_BYTES:
+                    raise ValueError(f"{path}: chunk at byte offset {pos} says it unpacks to "
+                                     f"{usize} bytes (limit {MAX_CHUNK_BYTES})")  # fmt: skip
+            pos += 8 + hlen + dlen
+
+
 def decode_event_array(raw: bytes) -> tuple[int, int, np.ndarray]:
     """``(width, height, events)`` from one serialised EventArray; events has fields x, y, s, ns, p."""
     mv = memoryview(raw)
@@ -55,7 +145,7 @@ def decode_event_array(raw: bytes) -> tuple[int, int, np.ndarray]:
 
 
 class RosbagRecording(Recording):
-    """A ROS1 bag; ``topic`` selects the EventArray topic when there are several."""
+    """A ROS 1 or ROS 2 bag; ``topic`` selects the event topic when there are several."""
 
     format = "rosbag"
 
@@ -68,25 +158,41 @@ class RosbagRecording(Recording):
         pose_topic: str | None = None,
     ) -> None:
         super().__init__(path, chunk_events)
-        from rosbags.rosbag1 import Reader, ReaderError
+        self.ros2 = is_ros2_bag(self.path)
+        if self.ros2:
+            from rosbags.rosbag2 import ReaderError
 
-        self._ReaderError = ReaderError
-        try:
-            self._reader = Reader(self.path)
-            self._reader.open()
-        except ReaderError as e:
-            raise ValueError(f"{self.path}: not a readable ROS1 bag ({e})") from e
+            self._ReaderError = ReaderError
+            self._reader = _open_ros2(self.path)
+        else:
+            from rosbags.rosbag1 import Reader, ReaderError
+
+            self._ReaderError = ReaderError
+            check_rosbag1_records(self.path)
+            try:
+                self._reader = Reader(self.path)
+                self._reader.open()
+            except ReaderError as e:
+                raise ValueError(f"{self.path}: not a readable ROS1 bag ({e})") from e
         conns = self._reader.connections
         self.topics = {c.topic: c.msgtype for c in conns}
-        self._ev = self._select(conns, EVENT_ARRAY_TYPES, topic, "event", required=True)
+        types = EVENT_PACKET_TYPES if self.ros2 else EVENT_ARRAY_TYPES + EVENT_PACKET_TYPES
+        self._ev = self._select(conns, types, topic, "event", required=True)
+        self._packets = self._ev[0].msgtype in EVENT_PACKET_TYPES
         self._img = self._select(conns, ("sensor_msgs/msg/Image",), image_topic, "image")
         self._info = self._select(conns, ("sensor_msgs/msg/CameraInfo",), None, "camera info")
         self._pose = self._select(conns, ("geometry_msgs/msg/PoseStamped",), pose_topic, "pose")
         self.metadata["topics"] = self.topics
         self.metadata["event_topic"] = self._ev[0].topic
+        self.metadata["event_message"] = self._ev[0].msgtype
         # sensor size from the first event message
         for _, _, raw in self._reader.messages(connections=self._ev):
-            w, h, _ = decode_event_array(raw)
+            if self._packets:
+                pkt = parse_event_packet(raw, self.ros2)
+                w, h = pkt.width, pkt.height
+                self.metadata["encoding"] = pkt.encoding
+            else:
+                w, h, _ = decode_event_array(raw)
             if w and h:
                 self.width, self.height = w, h
             break
@@ -119,10 +225,23 @@ class RosbagRecording(Recording):
 
     def _ts(self):
         if self._typestore is None:
-            self._typestore = dvs_typestore()
+            if self.ros2:
+                from rosbags.typesys import Stores, get_typestore
+
+                self._typestore = get_typestore(Stores.ROS2_HUMBLE)
+            else:
+                self._typestore = dvs_typestore()
         return self._typestore
 
+    def _deserialize(self, raw: bytes, msgtype: str):
+        if self.ros2:
+            return self._ts().deserialize_cdr(raw, msgtype)
+        return self._ts().deserialize_ros1(raw, msgtype)
+
     def iter_events(self) -> Iterator[RawEvents]:
+        if self._packets:
+            yield from self._iter_packets()
+            return
         parts: list[np.ndarray] = []
         held = start = 0
         k = 0
@@ -149,6 +268,51 @@ class RosbagRecording(Recording):
         if held:
             yield self._batch(parts, start)
 
+    def _iter_packets(self) -> Iterator[RawEvents]:
+        topic = self._ev[0].topic
+        dec = PacketDecoder(f"{self.path}: {topic}")
+        cols: list[tuple[np.ndarray, ...]] = []
+        held = start = k = 0
+        last_seq = None
+        lost = 0
+        try:
+            for _, _, raw in self._reader.messages(connections=self._ev):
+                try:
+                    pkt = parse_event_packet(raw, self.ros2)
+                except ValueError as e:
+                    raise ValueError(
+                        f"{self.path}: EventPacket {k} on {topic} is corrupt: {e}"
+                    ) from e
+                if last_seq is not None and pkt.seq > last_seq + 1:
+                    lost += pkt.seq - last_seq - 1
+                last_seq = pkt.seq
+                t, x, y, p = dec.decode(pkt, k)
+                k += 1
+                if len(t):
+                    cols.append((t, x, y, p))
+                    held += len(t)
+                if held >= self.chunk_events:
+                    yield self._packet_batch(cols, start, k)
+                    start += held
+                    cols, held = [], 0
+        except self._ReaderError as e:
+            raise ValueError(f"{self.path}: bag is corrupt after packet {k} on {topic}: {e}") from e
+        if held:
+            yield self._packet_batch(cols, start, k)
+        if lost:
+            log.warning(
+                "%s: %d EventPackets missing on %s (gaps in their seq)", self.path, lost, topic
+            )
+        self.metadata["lost_packets"] = int(lost)
+        self.metadata["dropped_before_time_base"] = dec.dropped_before_time_base
+        self.metadata["dropped_off_sensor"] = dec.dropped_off_sensor
+
+    @staticmethod
+    def _packet_batch(cols: list[tuple[np.ndarray, ...]], start: int, k: int) -> RawEvents:
+        t, x, y, p = (np.concatenate([c[i] for c in cols]) for i in range(4))
+        return RawEvents(t, x, y, p, start=start,
+                         locate=lambda i, k=k: f"in the EventPackets before packet {k}")  # fmt: skip
+
     @staticmethod
     def _batch(parts: list[np.ndarray], start: int) -> RawEvents:
         a = np.concatenate(parts)
@@ -157,7 +321,7 @@ class RosbagRecording(Recording):
 
     def iter_frames(self) -> Iterator[Frame]:
         for _, _, raw in self._reader.messages(connections=self._img):
-            m = self._ts().deserialize_ros1(raw, "sensor_msgs/msg/Image")
+            m = self._deserialize(raw, "sensor_msgs/msg/Image")
             t_us = int(m.header.stamp.sec) * 1_000_000 + (int(m.header.stamp.nanosec) + 500) // 1000
             data = np.asarray(m.data, dtype=np.uint8)
             enc = m.encoding.lower()
@@ -183,7 +347,7 @@ class RosbagRecording(Recording):
 
     def camera(self, width: int, height: int) -> Camera | None:
         for _, _, raw in self._reader.messages(connections=self._info):
-            m = self._ts().deserialize_ros1(raw, "sensor_msgs/msg/CameraInfo")
+            m = self._deserialize(raw, "sensor_msgs/msg/CameraInfo")
             K = np.asarray(m.K if hasattr(m, "K") else m.k, dtype=np.float64)
             D = list(np.asarray(m.D if hasattr(m, "D") else m.d, dtype=np.float64))
             if not K.any():
@@ -208,7 +372,7 @@ class RosbagRecording(Recording):
 
         ts, rows = [], []
         for _, _, raw in self._reader.messages(connections=self._pose):
-            m = self._ts().deserialize_ros1(raw, "geometry_msgs/msg/PoseStamped")
+            m = self._deserialize(raw, "geometry_msgs/msg/PoseStamped")
             ts.append(int(m.header.stamp.sec) + int(m.header.stamp.nanosec) * 1e-9)
             q, pp = m.pose.orientation, m.pose.position
             rows.append([pp.x, pp.y, pp.z, q.x, q.y, q.z, q.w])
