@@ -24,14 +24,31 @@ class ConfigError(ValueError):
     """A configuration value is invalid; the message names the key."""
 
 
+def _is_map(sub: dict[str, Any]) -> bool:
+    """A schema of a free-keyed mapping with default entries (no fixed ``properties``)."""
+    return (
+        sub.get("type") == "object"
+        and isinstance(sub.get("default"), dict)
+        and "properties" not in sub
+        and isinstance(sub.get("additionalProperties"), dict)
+    )
+
+
 def _extend_with_defaults(validator_class):
     validate_properties = validator_class.VALIDATORS["properties"]
 
     def set_defaults(validator, properties, instance, schema):
         if isinstance(instance, dict):
             for name, sub in properties.items():
-                if "default" in sub and name not in instance:
+                if "default" not in sub:
+                    continue
+                if name not in instance:
                     instance[name] = copy.deepcopy(sub["default"])
+                elif _is_map(sub) and isinstance(instance[name], dict):
+                    # a map-valued key (checkpoints, presets): entries given are added to the
+                    # default entries, so naming one does not drop the others
+                    for k, v in sub["default"].items():
+                        instance[name].setdefault(k, copy.deepcopy(v))
         yield from validate_properties(validator, properties, instance, schema)
 
     return jsonschema.validators.extend(validator_class, {"properties": set_defaults})
