@@ -39,4 +39,4 @@ include: "workflow/rules/train.smk"
 rule all:
     default_target: True
     input:
-        all_targets(),
+        all_targets,

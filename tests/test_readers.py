@@ -450,3 +450,33 @@ def test_real_evt2_sample(anchors, tmp_path):
     assert (ev.t[0], ev.t[-1]) == (1_317_888, 1_367_888)
     assert (ev.t[1000], ev.x[1000], ev.y[1000], ev.p[1000]) == (1_317_979, 262, 94, -1)
     assert ((ev.p > 0).sum(), (ev.p < 0).sum()) == (367_855, 171_626)
+
+
+def test_cli_info_describes_a_real_recording_without_converting(anchors, tmp_path, capsys):
+    from evdense.cli import main
+
+    src = anchors / "data" / "ecd_slider_depth"
+    before = sorted(p.name for p in src.iterdir())
+    assert main(["info", str(src), "--json"]) == 0
+    info = json.loads(capsys.readouterr().out)
+    assert (info["format"], info["events"], info["frames"], info["gt_poses"]) == (
+        "rpg_text", 50_000, 87, 339)  # fmt: skip
+    assert info["frame_size"] == [240, 180] and info["sensor"] == [240, 180]
+    assert info["calibration"]["fx"] == pytest.approx(335.419, abs=1e-3)
+    assert 0.16 < info["duration_s"] < 0.18 and 0 < info["on_fraction"] < 1
+    assert sorted(p.name for p in src.iterdir()) == before  # nothing written beside it
+    assert main(["info", str(tmp_path / "missing.aedat4")]) == 2  # a clear error, no traceback
+
+
+def test_cli_reconstruct_writes_a_config_and_plans_the_run(anchors, tmp_path):
+    import yaml
+
+    from evdense.cli import main
+
+    src = anchors / "data" / "ecd_slider_depth"
+    assert main(["reconstruct", str(src), "--out", str(tmp_path), "--dry-run"]) == 0
+    conf = yaml.safe_load((tmp_path / "config.yaml").read_text())
+    assert conf["datasets"] == {"ecd_slider_depth": {"recording": str(src.resolve()),
+                                                     "format": "auto"}}  # fmt: skip
+    assert conf["reconstruct"]["methods"] == ["ours"]
+    assert not (tmp_path / "results").exists()  # a dry run makes nothing

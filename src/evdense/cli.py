@@ -23,8 +23,8 @@ def _add_convert(sub: argparse.ArgumentParser) -> None:
     from evdense.io.detect import FORMATS
 
     sub.description = (
-        "Convert an event recording (RPG text, E2VID HDF5, AEDAT4, ROS1 bag, Prophesee EVT2/EVT3/DAT, "
-        "NumPy) to evdense's canonical HDF5 event file."
+        "Convert an event recording (RPG text, E2VID HDF5, AEDAT4, ROS 1/ROS 2 bag, Prophesee "
+        "EVT2/EVT3/DAT, NumPy) to evdense's canonical HDF5 event file."
     )
     sub.add_argument("input", help="recording file (or a folder holding events.txt)")
     sub.add_argument("output", help="canonical event file to write (.h5)")
@@ -72,7 +72,7 @@ def _add_convert(sub: argparse.ArgumentParser) -> None:
         choices=("blosc-lz4", "zstd", "gzip", "lzf", "none"),
         help="HDF5 compression of the output (blosc-lz4: ~4 bytes/event, fastest to read)",
     )
-    sub.add_argument("--topic", help="ROS bag: the EventArray topic (when there are several)")
+    sub.add_argument("--topic", help="ROS bag: the event topic (when there are several)")
     sub.add_argument(
         "--frames-dir",
         help="also write the recording's frames here (a frames folder is made inside)",
@@ -163,9 +163,202 @@ def _run_train(args: argparse.Namespace) -> int:
     return 0
 
 
+# --- info ---------------------------------------------------------------------------------------
+def _add_info(sub: argparse.ArgumentParser) -> None:
+    sub.description = (
+        "Describe a recording without converting it: format, sensor size, duration, event count "
+        "and rate, polarity balance, frames, calibration and ground truth found."
+    )
+    sub.add_argument("recording", help="recording file or folder")
+    sub.add_argument("--format", default="auto", help="input format (default: from the file)")
+    sub.add_argument("--topic", help="ROS bag: the event topic (when there are several)")
+    sub.add_argument("--json", action="store_true", help="print JSON instead of text")
+    sub.set_defaults(func=_run_info)
+
+
+def recording_info(path: str, fmt: str = "auto", topic: str | None = None) -> dict:
+    """What :func:`_run_info` prints, as a dict (the events are read once, nothing is written)."""
+    import numpy as np
+
+    from evdense.io import open_recording
+
+    opts = {"topic": topic} if topic else {}
+    with open_recording(path, fmt, **opts) as rec:
+        n = on = 0
+        t0 = t1 = None
+        xmax = ymax = -1
+        for b in rec.iter_events():
+            if not len(b.t):
+                continue
+            n += len(b.t)
+            on += int((np.asarray(b.p) > 0).sum())
+            t0 = int(b.t[0]) if t0 is None else min(t0, int(b.t[0]))
+            t1 = int(b.t[-1]) if t1 is None else max(t1, int(b.t[-1]))
+            xmax, ymax = max(xmax, int(b.x.max())), max(ymax, int(b.y.max()))
+        frames = 0
+        frame_size = None
+        for fr in rec.iter_frames():
+            frames += 1
+            if frame_size is None:
+                if fr.image is not None:
+                    shape = fr.image.shape
+                else:
+                    import imageio.v3 as iio
+
+                    shape = iio.improps(fr.source).shape
+                frame_size = (int(shape[1]), int(shape[0]))
+        w = rec.width or xmax + 1
+        h = rec.height or ymax + 1
+        cam = rec.camera(w, h) if n else None
+        traj = rec.trajectory()
+        duration = (t1 - t0) * 1e-6 if n else 0.0
+        return {
+            "path": str(path),
+            "format": rec.format,
+            "sensor": [w, h],
+            "sensor_from": "file" if rec.width else "max x, y + 1 (the file does not say)",
+            "events": n,
+            "duration_s": duration,
+            "rate_ev_per_s": n / duration if duration > 0 else None,
+            "on_fraction": on / n if n else None,
+            "t_first_us": t0,
+            "t_last_us": t1,
+            "frames": frames,
+            "frame_size": list(frame_size) if frame_size else None,
+            "calibration": None
+            if cam is None
+            else {
+                "model": getattr(cam, "model", ""),
+                "fx": cam.fx,
+                "fy": cam.fy,
+                "cx": cam.cx,
+                "cy": cam.cy,
+            },  # fmt: skip
+            "gt_poses": 0 if traj is None else len(traj.t),
+            "imu": "not read (evdense does not use IMU data)",
+            "metadata": {k: v for k, v in rec.metadata.items() if k != "topics"},
+        }
+
+
+def _run_info(args: argparse.Namespace) -> int:
+    import json
+
+    info = recording_info(args.recording, args.format, args.topic)
+    if args.json:
+        print(json.dumps(info, indent=2, default=str))
+        return 0
+    rate = info["rate_ev_per_s"]
+    cal = info["calibration"]
+    lines = [
+        f"{info['path']}",
+        f"  format        {info['format']}",
+        f"  sensor        {info['sensor'][0]} x {info['sensor'][1]} ({info['sensor_from']})",
+        f"  events        {info['events']:,} over {info['duration_s']:.3f} s"
+        + (f" ({rate / 1e6:.3f} Mev/s)" if rate else ""),
+        "  polarity      "
+        + (f"{100 * info['on_fraction']:.1f} % ON" if info["on_fraction"] is not None else "-"),
+        f"  frames        {info['frames']}"
+        + (f" ({info['frame_size'][0]} x {info['frame_size'][1]})" if info["frame_size"] else ""),
+        "  calibration   "
+        + (
+            f"fx {cal['fx']:.2f} fy {cal['fy']:.2f} cx {cal['cx']:.2f} cy {cal['cy']:.2f}"
+            if cal
+            else "none"
+        ),  # fmt: skip
+        f"  GT poses      {info['gt_poses']}",
+        f"  IMU           {info['imu']}",
+    ]
+    print("\n".join(lines))
+    return 0
+
+
+# --- reconstruct ----------------------------------------------------------------------------------
+def _add_reconstruct(sub: argparse.ArgumentParser) -> None:
+    sub.description = (
+        "Reconstruct one recording to the end (frames, SfM, dense cloud, meshes, evaluation when "
+        "it carries ground truth): writes OUT/config.yaml and runs the workflow in OUT."
+    )
+    sub.add_argument("recording", help="recording file or folder")
+    sub.add_argument("--calibration", help="intrinsics file (else the recording's own, if any)")
+    sub.add_argument("--method", nargs="+", default=["ours"], help="reconstruction presets")
+    sub.add_argument("--format", default="auto", help="input format (default: from the file)")
+    sub.add_argument("--out", default="evdense_out", help="working folder (results/ go inside)")
+    sub.add_argument("--cores", type=int, default=2, help="cores for Snakemake")
+    sub.add_argument("--name", help="dataset name (default: from the recording's file name)")
+    sub.add_argument("--dry-run", action="store_true", help="only show what would run")
+    sub.set_defaults(func=_run_reconstruct)
+
+
+def _dataset_name(path) -> str:
+    import re
+    from pathlib import Path
+
+    stem = Path(path).name.split(".")[0] or "recording"
+    name = re.sub(r"[^A-Za-z0-9_.-]", "_", stem).lstrip("._-")
+    return (name or "recording")[:100]
+
+
+def _run_reconstruct(args: argparse.Namespace) -> int:
+    import subprocess
+    from pathlib import Path
+
+    import yaml
+
+    from evdense.config import REPO_ROOT, load_config
+
+    rec = Path(args.recording).resolve()
+    if not rec.exists():
+        raise FileNotFoundError(f"{rec}: no such recording")
+    out = Path(args.out).resolve()
+    out.mkdir(parents=True, exist_ok=True)
+    name = args.name or _dataset_name(rec)
+    ds: dict = {"recording": str(rec), "format": args.format}
+    if args.calibration:
+        ds["calibration"] = str(Path(args.calibration).resolve())
+    conf = {"datasets": {name: ds}, "reconstruct": {"methods": list(args.method)}}
+    cfg_path = out / "config.yaml"
+    cfg_path.write_text(yaml.safe_dump(conf, sort_keys=False))
+    load_config(cfg_path)  # a bad recording or option fails here, naming the key
+    cmd = [sys.executable, "-m", "snakemake", "-s", str(REPO_ROOT / "Snakefile"), "--directory",
+           str(out), "--configfile", str(cfg_path), "--cores", str(args.cores)]  # fmt: skip
+    if args.dry_run:
+        cmd.append("-n")
+    log.info("running: %s", " ".join(cmd))
+    rc = subprocess.call(cmd)
+    if rc or args.dry_run:
+        return rc
+    res = out / "results" / name
+    print(f"\nresults of {rec} in {res}:")
+    for sfm in sorted((res / "sfm").iterdir()):
+        src = sfm.name
+        meshes = sorted((res / "mesh" / src).glob("*/textured/mesh.obj"))
+        status = "SfM failed (see stats.json)" if _failed(sfm) else "ok"
+        print(f"  {src}: {status}")
+        print(f"    COLMAP model   {sfm / 'sparse' / '0'}")
+        print(f"    dense cloud    {res / 'mvs' / src / 'fused.ply'}")
+        for m in meshes:
+            print(f"    textured mesh  {m}")
+        metrics = res / "eval" / src / "metrics.json"
+        if metrics.is_file():
+            print(f"    metrics        {metrics}")
+    summary = out / "results" / "summary" / "summary.md"
+    if summary.is_file():
+        print(f"  summary        {summary}")
+    return 0
+
+
+def _failed(sfm_dir) -> bool:
+    import json
+
+    stats = sfm_dir / "stats.json"
+    return not stats.is_file() or bool(json.loads(stats.read_text()).get("failed"))
+
+
 SUBCOMMANDS: dict[str, tuple[str, Callable[[argparse.ArgumentParser], None]]] = {
     "convert": ("convert a recording to the canonical event file", _add_convert),
     "train": ("train our reconstruction weights on simulated data", _add_train),
+    "info": ("describe a recording without converting it", _add_info),
+    "reconstruct": ("reconstruct one recording to the textured mesh", _add_reconstruct),
 }
 
 

@@ -65,9 +65,11 @@ class SfmConfig:
     matching time grows with its square. Sets extraction.sift.max_num_features."""
     camera_model: str = "SIMPLE_RADIAL"
     """COLMAP camera model estimated when no calibration is given (one camera shared by all frames)."""
-    calibration: str | None = None
+    calibration: str | None = "auto"
     """Calibration file (our YAML, VINS YAML, COLMAP cameras.txt); rescaled to the frame size when
-    the aspect ratio matches. None: intrinsics are estimated."""
+    the aspect ratio matches. None: intrinsics are estimated. ``auto``: the workflow gives a
+    recording's own calibration when it carries one (or its dataset names one) and estimates
+    otherwise (synthetic scenes); called directly, ``auto`` estimates."""
     refine_intrinsics: bool = False
     """With a calibration: refine focal length and distortion in bundle adjustment (else fixed)."""
     matcher: str = "exhaustive"
@@ -89,7 +91,7 @@ class SfmConfig:
     """Fewer registered frames than this is an error (SfmError)."""
     colmap_log_level: str = "WARNING"
     """Lowest level of COLMAP's own log lines (INFO, WARNING, ERROR); they go to stderr."""
-    on_failure: str = "error"
+    on_failure: str = "record"
     """What the workflow does when too few frames register: error (stop with the diagnostics), or
     record (write an output folder marked failed, so that a sweep goes on and the failure is
     scored: no trajectory, no points)."""
@@ -118,6 +120,11 @@ class SfmConfig:
         cfg.check()
         return cfg
 
+    @property
+    def calibration_file(self) -> str | None:
+        """The calibration file in use, or None when the intrinsics are estimated."""
+        return None if self.calibration in (None, "", "auto") else self.calibration
+
     def check(self) -> None:
         """Raise ``ValueError`` naming the key of the first invalid value."""
         for key, allowed in (
@@ -140,7 +147,7 @@ class SfmConfig:
                 "config key 'sfm.calibration': 'dataset' is resolved to a file by the workflow rule; "
                 "give a file path when calling run_sfm directly"
             )
-        if self.calibration and not Path(self.calibration).is_file():
+        if self.calibration_file and not Path(self.calibration_file).is_file():
             raise ValueError(f"config key 'sfm.calibration': no such file {self.calibration}")
         if not 0 <= self.min_registered_fraction <= 1:
             raise ValueError(
@@ -340,12 +347,12 @@ def _device(cfg: SfmConfig):
 
 
 def _calibrated_camera(cfg: SfmConfig, width: int, height: int) -> Camera:
-    cam = load_camera(cfg.calibration)
+    cam = load_camera(cfg.calibration_file)
     if (cam.width, cam.height) != (width, height):
         factor = width / cam.width
         if abs(height / cam.height - factor) > 1e-3 * factor:
             raise ValueError(
-                f"{cfg.calibration}: calibration is {cam.width}x{cam.height}, frames are {width}x{height} "
+                f"{cfg.calibration_file}: calibration is {cam.width}x{cam.height}, frames are {width}x{height} "
                 "(different aspect ratio; cannot rescale)"
             )
         log.warning(
@@ -509,7 +516,7 @@ def _pycolmap_options(cfg: SfmConfig, threads: int, width: int, height: int) -> 
 
     reader = pycolmap.ImageReaderOptions()
     fixed = False
-    if cfg.calibration:
+    if cfg.calibration_file:
         cam = _calibrated_camera(cfg, width, height)
         model, params = _colmap_params(cam)
         reader.camera_model = model
@@ -517,7 +524,7 @@ def _pycolmap_options(cfg: SfmConfig, threads: int, width: int, height: int) -> 
         fixed = not cfg.refine_intrinsics
         log.info(
             "camera from %s: %s %s (%s)",
-            cfg.calibration,
+            cfg.calibration_file,
             model,
             params,
             "fixed" if fixed else "refined",
@@ -753,7 +760,7 @@ def run_sfm(
         "mean_observations_per_image": float(rec.compute_mean_observations_per_reg_image()),
         "mean_reprojection_error_px": float(rec.compute_mean_reprojection_error()),
         "camera": _camera_stats(rec),
-        "intrinsics_source": cfg.calibration or "estimated",
+        "intrinsics_source": cfg.calibration_file or "estimated",
         "intrinsics_fixed": opts.fixed_intrinsics,
         "pixel_convention": "camera.cx/cy: evdense (top-left pixel centre at 0,0); params_colmap: COLMAP (0.5,0.5)",
         "other_models": diagnostics["models"][1:],

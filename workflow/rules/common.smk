@@ -1,6 +1,7 @@
 # Helpers shared by the rules: dataset lookup, wildcard constraints, target lists.
 # Logic lives in the evdense package; this file only maps config to paths.
 
+import json
 import re
 from pathlib import Path
 
@@ -47,13 +48,14 @@ def sim_conf(wildcards=None):
     return config["simulator"]
 
 
-def all_targets():
-    """Everything `rule all` asks for: each dataset's products and, when there is ground truth,
-    the metrics table, the figures and the summary."""
+def all_targets(wildcards=None):
+    """Everything `rule all` asks for: each dataset's products to the textured mesh and, when
+    there is ground truth, the metrics table, the figures and the summary. (An input function:
+    a recording's image sources are known once it is ingested.)"""
     targets = []
     for name in DATASETS:
         targets += dataset_targets(name)
-    if SYNTHETIC:
+    if evaluated_datasets():
         targets += [
             f"{SUMMARY}/metrics.csv",
             f"{SUMMARY}/figures",
@@ -62,11 +64,22 @@ def all_targets():
     return targets
 
 
+def evaluated_datasets():
+    """Datasets with ground truth to measure against: synthetic scenes, and recordings that carry
+    GT poses or APS frames."""
+    return SYNTHETIC + [
+        name
+        for name in RECORDINGS
+        if ingest_manifest(name).get("num_poses", 0) > 0
+        or ingest_manifest(name).get("num_frames", 0) > 0
+    ]
+
+
 def all_metrics_files():
-    """One metrics file per synthetic dataset and image source."""
+    """One metrics file per evaluated dataset and image source."""
     return [
         f"results/{name}/eval/{src}/metrics.json"
-        for name in SYNTHETIC
+        for name in evaluated_datasets()
         for src in image_sources(name)
     ]
 
@@ -103,21 +116,37 @@ def event_frame_sources():
 
 
 def dataset_targets(name):
-    """Outputs `rule all` asks for, for one dataset."""
-    targets = [f"results/{name}/events/summary"]
-    if name in SYNTHETIC:
-        targets += [f"results/{name}/gt", f"results/{name}/conventional"]
+    """Outputs `rule all` asks for, for one dataset: every image source to the textured mesh (a
+    source whose SfM fails records "no model" in the stages after it, and the run goes on).
+    """
+    targets = [
+        f"results/{name}/events/summary",
+        f"results/{name}/gt",
+        f"results/{name}/conventional",
+    ]
     targets += [f"results/{name}/frames/{src}" for src in event_frame_sources()]
-    targets += [f"results/{name}/sfm/{src}" for src in image_sources(name)]
+    for src in image_sources(name):
+        targets += [f"results/{name}/sfm/{src}", f"results/{name}/mvs/{src}/fused.ply"]
+        targets += mesh_products(name, src)
     return targets
+
+
+def ingest_manifest(name):
+    """What the ingest of a recording found (results/{name}/events/ingest.json); asks Snakemake
+    to run the ingest first when it has not run."""
+    path = checkpoints.ingest.get(dataset=name).output.manifest
+    return json.loads(Path(path).read_text())
 
 
 def image_sources(name):
     """Image sources reconstructed for a dataset: events through each method, the conventional
-    camera, and (synthetic scenes) the sharp GT frames, the oracle."""
-    sources = list(event_frame_sources()) + ["conventional"]
+    camera (a recording: only when it holds frames), and (synthetic scenes) the sharp GT frames,
+    the oracle."""
+    sources = list(event_frame_sources())
     if name in SYNTHETIC:
-        sources.append("gt")
+        sources += ["conventional", "gt"]
+    elif ingest_manifest(name).get("num_frames", 0) > 0:
+        sources.append("conventional")
     return sources
 
 

@@ -1,16 +1,21 @@
-# Evaluation (src/evdense/evaluate/): every image source of every synthetic dataset against its
-# ground truth, one metrics file per run, all runs gathered into one table.
+# Evaluation (src/evdense/evaluate/): every image source of every dataset with ground truth against
+# it, one metrics file per run, all runs gathered into one table. A synthetic scene has it all; a
+# recording is measured by what it carries (GT poses: ATE/RPE; APS frames: the event frames
+# against the nearest one).
 
 
 def evaluate_inputs(wildcards):
     d, s = wildcards.dataset, wildcards.source
-    return {
+    inputs = {
         "gt": f"results/{d}/gt",
         "sfm": f"results/{d}/sfm/{s}",
         "images": source_images(d, s),
         "dense": f"results/{d}/mvs/{s}/fused.ply",
         "meshes": mesh_products(d, s),
     }
+    if d in RECORDINGS and "conventional" in image_sources(d):
+        inputs["reference"] = f"results/{d}/conventional"  # its APS frames
+    return inputs
 
 
 rule evaluate_source:
@@ -22,13 +27,16 @@ rule evaluate_source:
         "results/{dataset}/logs/evaluate_source/{source}.log",
     benchmark:
         "results/{dataset}/benchmarks/evaluate_source/{source}.tsv"
-    wildcard_constraints:
-        dataset=names_regex(SYNTHETIC),
     threads: 1
     params:
         conf=lambda w: config["evaluate"],
         labels=lambda w: run_labels(w.dataset, w.source),
         frames=lambda w: source_frames_dir(w.dataset, w.source),
         mesh_names=lambda w: list(mesh_product_names()),
+        reference=lambda w: (
+            f"results/{w.dataset}/conventional/frames"
+            if w.dataset in RECORDINGS
+            else None
+        ),
     script:
         "../scripts/evaluate_source.py"

@@ -17,8 +17,8 @@ rule make_windows:
         "results/{dataset}/benchmarks/make_windows/{win}.tsv"
     wildcard_constraints:
         win=WINDOW_SPEC_REGEX,
-    threads: 1
     priority: 1
+    threads: 1
     script:
         "../scripts/make_windows.py"
 
@@ -36,8 +36,8 @@ rule make_voxels:
     wildcard_constraints:
         win=WINDOW_SPEC_REGEX,
         bins=r"\d+",
-    threads: 1
     priority: 1
+    threads: 1
     params:
         conf=lambda w: config["events"]["voxel"],
     script:

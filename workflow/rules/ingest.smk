@@ -3,7 +3,8 @@
 # The conventional/ and gt/ folders are always created (possibly empty): Snakemake has no optional
 # outputs, so results/{dataset}/events/ingest.json lists what was found (null where absent).
 # events.h5 has the same path as simulate_events' output; the dataset wildcard constraints
-# (RECORDINGS here, SYNTHETIC there) keep the two rules apart.
+# (RECORDINGS here, SYNTHETIC there) keep the two rules apart. A checkpoint: what the recording
+# holds (frames or not) decides its image sources (common.smk: image_sources).
 
 
 def ingest_inputs(wildcards):
@@ -15,7 +16,7 @@ def ingest_inputs(wildcards):
     return inputs
 
 
-rule ingest:
+checkpoint ingest:
     input:
         unpack(ingest_inputs),
     output:

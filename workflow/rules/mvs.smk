@@ -44,8 +44,8 @@ rule run_mvs:
         "results/{dataset}/benchmarks/run_mvs/{source}.tsv"
     wildcard_constraints:
         source=r"[A-Za-z0-9_\-]+",
-    threads: 2
     priority: 1
+    threads: 2
     resources:
         gpu=1,
     params:

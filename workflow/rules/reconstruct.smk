@@ -51,8 +51,8 @@ rule reconstruct_frames:
         method=names_regex(RECON_PRESETS),
         win=WINDOW_SPEC_REGEX,
         bins=r"\d+",
-    threads: 2
     priority: 1
+    threads: 2
     params:
         conf=recon_conf,
     script:

@@ -7,11 +7,17 @@
 
 
 def sfm_inputs(wildcards):
-    """The rule output holding the frames, and the calibration file when config sfm.calibration
-    is `dataset` on a synthetic scene (its GT intrinsics)."""
-    inputs = {"images": source_images(wildcards.dataset, wildcards.source)}
-    if config["sfm"]["calibration"] == "dataset" and wildcards.dataset in SYNTHETIC:
-        inputs["gt"] = f"results/{wildcards.dataset}/gt"
+    """The rule output holding the frames, and the GT folder where the calibration comes from:
+    config sfm.calibration `dataset` (a synthetic scene's GT intrinsics, a recording's own) or
+    `auto` on a recording (its gt/intrinsics.yaml when ingest found one; the script decides).
+    """
+    d = wildcards.dataset
+    inputs = {"images": source_images(d, wildcards.source)}
+    cal = config["sfm"]["calibration"]
+    if (cal == "dataset" and d in SYNTHETIC) or (
+        cal in ("auto", "dataset") and d in RECORDINGS
+    ):
+        inputs["gt"] = f"results/{d}/gt"
     return inputs
 
 
@@ -24,14 +30,11 @@ def sfm_conf(wildcards):
         for k, v in config["sfm"].items()
         if k not in ("on_failure", "colmap_log_level")
     }
-    if conf["calibration"] == "dataset":
-        d = wildcards.dataset
-        ds = DATASETS[d]
-        conf["calibration"] = (
-            f"results/{d}/gt/intrinsics.yaml"
-            if d in SYNTHETIC
-            else ds.get("calibration")
-        )
+    d = wildcards.dataset
+    if conf["calibration"] == "dataset" and d in SYNTHETIC:
+        conf["calibration"] = f"results/{d}/gt/intrinsics.yaml"
+    elif conf["calibration"] == "auto" and d in SYNTHETIC:
+        conf["calibration"] = None
     return conf
 
 
@@ -46,8 +49,8 @@ rule run_sfm:
         "results/{dataset}/benchmarks/run_sfm/{source}.tsv"
     wildcard_constraints:
         source=r"[A-Za-z0-9_\-]+",
-    threads: 2
     priority: 1
+    threads: 2
     params:
         frames=lambda w: source_frames_dir(w.dataset, w.source),
         conf=sfm_conf,

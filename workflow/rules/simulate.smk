@@ -13,8 +13,8 @@ rule simulate_groundtruth:
         "results/{dataset}/benchmarks/simulate_groundtruth.tsv"
     wildcard_constraints:
         dataset=names_regex(SYNTHETIC),
-    threads: 1
     priority: 1
+    threads: 1
     params:
         dataset=dataset_conf,
         simulator=sim_conf,
@@ -35,8 +35,8 @@ rule simulate_events:
         "results/{dataset}/benchmarks/simulate_events.tsv"
     wildcard_constraints:
         dataset=names_regex(SYNTHETIC),
-    threads: 1
     priority: 1
+    threads: 1
     params:
         dataset=dataset_conf,
         simulator=sim_conf,
@@ -53,8 +53,8 @@ rule simulate_conventional:
         "results/{dataset}/benchmarks/simulate_conventional.tsv"
     wildcard_constraints:
         dataset=names_regex(SYNTHETIC),
-    threads: 1
     priority: 1
+    threads: 1
     params:
         dataset=dataset_conf,
         simulator=sim_conf,

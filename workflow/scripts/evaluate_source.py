@@ -14,4 +14,5 @@ evaluate_source(
     meshes=dict(zip(snakemake.params.mesh_names, inp.get("meshes", []) or [], strict=False)),
     conf=snakemake.params.conf,
     labels=snakemake.params.labels,
+    reference_frames=snakemake.params.reference if inp.get("reference") else None,
 )

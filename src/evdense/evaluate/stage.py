@@ -244,8 +244,15 @@ def evaluate_source(
     meshes: dict[str, str | Path] | None = None,
     conf: EvalConfig | dict | None = None,
     labels: dict[str, Any] | None = None,
+    reference_frames: str | Path | None = None,
 ) -> dict[str, Any]:
     """Score one image source of a dataset against GT and write ``out_path`` (JSON).
+
+    A synthetic dataset's ``gt/`` holds everything (trajectory, mesh, intensity). A recording's
+    holds what it carries: the trajectory (ATE and RPE after Sim(3), matched by time) is scored
+    when ``gt/trajectory.txt`` exists, geometry when ``gt/mesh.ply`` does, and its frames, when
+    ``reference_frames`` (the recording's APS frames) is given, against the nearest APS frame
+    (:func:`evaluate_against_reference`, marked ``"reference": "aps_nearest"``).
 
     Args:
         gt_dir: the dataset's ``gt/`` folder (``trajectory.txt``, ``mesh.ply``, ``scene.json``).
@@ -272,6 +279,9 @@ def evaluate_source(
             "mean_reprojection_error_px",
         )
     }
+    if not (gt_dir / "mesh.ply").is_file():
+        return _evaluate_without_gt_geometry(gt_dir, sfm_dir, out_path, frames_dir, conf,
+                                             result, sfm_stats, reference_frames)  # fmt: skip
     gt_mesh = o3d.io.read_triangle_mesh(str(gt_dir / "mesh.ply"))
     diag = bbox_diagonal(gt_mesh)
     gt_samples, result["gt_reference"] = gt_reference_samples(gt_dir, gt_mesh, conf)
@@ -360,10 +370,89 @@ def evaluate_source(
             _f_at(m.to_dict(), conf.default_threshold),
         )
     result["geometry"] = geometry
-    if frames_dir is not None:
+    if frames_dir is not None and reference_frames is None:
         result["images"] = evaluate_images(Path(frames_dir), gt_dir, conf)
+    elif frames_dir is not None:
+        result["images"] = evaluate_against_reference(
+            Path(frames_dir), Path(reference_frames), conf
+        )
     _write_json_atomic(out_path, result)
     return result
+
+
+def _evaluate_without_gt_geometry(
+    gt_dir: Path,
+    sfm_dir: Path,
+    out_path: Path,
+    frames_dir: str | Path | None,
+    conf: EvalConfig,
+    result: dict[str, Any],
+    sfm_stats: dict[str, Any],
+    reference_frames: str | Path | None,
+) -> dict[str, Any]:
+    """A recording without a GT surface: the trajectory and the frames, whatever it carries."""
+    result["geometry"] = {}
+    if sfm_stats.get("failed"):
+        log.warning("%s: SfM failed (%s)", sfm_dir, sfm_stats.get("error"))
+        result["failed"] = True
+        result["error"] = sfm_stats.get("error")
+    elif (gt_dir / "trajectory.txt").is_file():
+        t_gt, T_gt = read_tum(gt_dir / "trajectory.txt")
+        traj_path = sfm_dir / "trajectory.txt"
+        if not traj_path.exists():
+            raise ValueError(f"{sfm_dir}: no trajectory.txt (did SfM finish?)")
+        t_est, T_est = read_tum(traj_path)
+        result["trajectory"] = evaluate_trajectory(t_est, T_est, t_gt, T_gt).to_dict()
+        log.info("%s: trajectory against %s: %s", sfm_dir, gt_dir / "trajectory.txt",
+                 {k: result["trajectory"].get(k) for k in ("ate_rmse", "ate_rmse_relative")})  # fmt: skip
+    if frames_dir is not None and reference_frames is not None:
+        result["images"] = evaluate_against_reference(
+            Path(frames_dir), Path(reference_frames), conf
+        )
+    _write_json_atomic(out_path, result)
+    return result
+
+
+def evaluate_against_reference(
+    frames_dir: Path, reference_dir: Path, conf: EvalConfig, max_shift: int = 10
+) -> dict[str, Any]:
+    """MSE and SSIM of frames against the recording's nearest APS frame (EVREAL-style: each image
+    rescaled by its 1st-99th percentiles, best integer shift within ``max_shift`` px; see
+    :func:`evdense.evaluate.real_frames.shifted_metrics`). Reference frames more than half the
+    median frame interval from every frame are not used."""
+    import imageio.v3 as iio
+
+    from evdense.evaluate.real_frames import shifted_metrics
+
+    if frames_dir.resolve() == reference_dir.resolve():
+        return {"reference": "aps_nearest", "num_frames": 0, "note": "the source is the reference"}
+    paths, ts = _read_frames(frames_dir)
+    ref_paths, ref_ts = _read_frames(reference_dir)
+    out: dict[str, Any] = {"reference": "aps_nearest", "num_frames": 0}
+    if not paths or not ref_paths:
+        return out
+    gap = float(np.median(np.diff(ts))) if len(ts) > 1 else np.inf
+    pairs = []
+    for j, tr in enumerate(ref_ts):
+        i = int(np.argmin(np.abs(ts - tr)))
+        if abs(ts[i] - tr) <= gap / 2:
+            pairs.append((i, j))
+    if len(pairs) > conf.max_image_frames:
+        keep = np.linspace(0, len(pairs) - 1, conf.max_image_frames).round().astype(int)
+        pairs = [pairs[k] for k in np.unique(keep)]
+    per = []
+    for i, j in pairs:
+        img = iio.imread(paths[i]).astype(np.float64)
+        ref = iio.imread(ref_paths[j]).astype(np.float64)
+        img = img[..., :3].mean(-1) if img.ndim == 3 else img
+        ref = ref[..., :3].mean(-1) if ref.ndim == 3 else ref
+        if img.shape != ref.shape:
+            continue
+        per.append(shifted_metrics(img, ref, max_shift))
+    if per:
+        out.update({k: float(np.mean([m[k] for m in per])) for k in ("mse", "ssim")})
+    out["num_frames"] = len(per)
+    return out
 
 
 def _write_json_atomic(path: Path, data: dict) -> None:

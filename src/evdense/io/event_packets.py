@@ -99,6 +99,26 @@ class _Cursor:
 
 def parse_event_packet(raw: bytes, ros2: bool) -> EventPacket:
     """The fields of one serialised EventPacket (ROS 1 or ROS 2 CDR); ``ValueError`` when malformed."""
+    c, stamp = _header(raw, ros2)
+    height, width = c.take("I"), c.take("I")
+    seq, time_base = c.take("Q"), c.take("Q")
+    encoding = c.string()
+    big = bool(c.take("B"))
+    events = c.blob()
+    return EventPacket(stamp, height, width, seq, time_base, encoding, big, events)
+
+
+@dataclass
+class ImageMessage:
+    stamp_ns: int
+    height: int
+    width: int
+    encoding: str
+    step: int
+    data: memoryview
+
+
+def _header(raw: bytes, ros2: bool) -> tuple[_Cursor, int]:
     if ros2:
         if len(raw) < 4 or raw[1] not in (0, 1):
             raise ValueError("not a CDR message (bad encapsulation header)")
@@ -106,19 +126,23 @@ def parse_event_packet(raw: bytes, ros2: bool) -> EventPacket:
             raise ValueError("big-endian CDR is not supported")
         c = _Cursor(raw, 4, cdr=True)
         sec, nsec = c.take("i"), c.take("I")
-        c.string()  # frame_id
     else:
         c = _Cursor(raw, 0, cdr=False)
         c.take("I")  # header seq
         sec, nsec = c.take("I"), c.take("I")
-        c.string()
+    c.string()  # frame_id
+    return c, sec * 1_000_000_000 + nsec
+
+
+def parse_image(raw: bytes, ros2: bool) -> ImageMessage:
+    """The fields of one serialised ``sensor_msgs/Image`` (ROS 1 or ROS 2 CDR), every length
+    checked; tolerant of the empty CDR strings some recorders write (``rosbags`` refuses them)."""
+    c, stamp = _header(raw, ros2)
     height, width = c.take("I"), c.take("I")
-    seq, time_base = c.take("Q"), c.take("Q")
     encoding = c.string()
-    big = bool(c.take("B"))
-    events = c.blob()
-    return EventPacket(sec * 1_000_000_000 + nsec, height, width, seq, time_base, encoding, big,
-                       events)  # fmt: skip
+    c.take("B")  # is_bigendian (8-bit encodings only)
+    step = c.take("I")
+    return ImageMessage(stamp, height, width, encoding, step, c.blob())
 
 
 class PacketDecoder:

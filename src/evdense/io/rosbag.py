@@ -24,7 +24,12 @@ import numpy as np
 
 from evdense.camera import Camera
 from evdense.io.base import DEFAULT_CHUNK_EVENTS, Frame, RawEvents, Recording, Trajectory
-from evdense.io.event_packets import EVENT_PACKET_TYPES, PacketDecoder, parse_event_packet
+from evdense.io.event_packets import (
+    EVENT_PACKET_TYPES,
+    PacketDecoder,
+    parse_event_packet,
+    parse_image,
+)
 from evdense.log import get_logger
 
 log = get_logger("io")
@@ -320,10 +325,20 @@ class RosbagRecording(Recording):
         return RawEvents(t, a["x"], a["y"], a["p"], start=start)
 
     def iter_frames(self) -> Iterator[Frame]:
-        for _, _, raw in self._reader.messages(connections=self._img):
-            m = self._deserialize(raw, "sensor_msgs/msg/Image")
-            t_us = int(m.header.stamp.sec) * 1_000_000 + (int(m.header.stamp.nanosec) + 500) // 1000
-            data = np.asarray(m.data, dtype=np.uint8)
+        if not self._img:  # rosbags reads every message when given no connection
+            return
+        for k, (_, _, raw) in enumerate(self._reader.messages(connections=self._img)):
+            try:
+                m = parse_image(raw, self.ros2)
+            except ValueError as e:
+                raise ValueError(f"{self.path}: Image message {k} on {self._img[0].topic} is "
+                                 f"corrupt: {e}") from e  # fmt: skip
+            t_us = m.stamp_ns // 1000 + (1 if m.stamp_ns % 1000 >= 500 else 0)
+            data = np.frombuffer(m.data, dtype=np.uint8)
+            if m.step < m.width or len(data) < m.height * m.step:
+                raise ValueError(f"{self.path}: Image message {k}: {len(data)} bytes for "
+                                 f"{m.height} rows of {m.step}")  # fmt: skip
+            data = data[: m.height * m.step]
             enc = m.encoding.lower()
             ch = {
                 "mono8": 1,
@@ -338,6 +353,9 @@ class RosbagRecording(Recording):
                 raise ValueError(
                     f"{self.path}: image encoding {m.encoding!r} is not supported (8-bit only)"
                 )
+            if m.step < m.width * ch:
+                raise ValueError(f"{self.path}: Image message {k}: row of {m.step} bytes for "
+                                 f"{m.width} pixels of {m.encoding}")  # fmt: skip
             img = data.reshape(m.height, m.step)[:, : m.width * ch].reshape(m.height, m.width, ch)
             if enc.startswith("bgr"):
                 img = img[:, :, 2::-1]
@@ -346,6 +364,8 @@ class RosbagRecording(Recording):
             yield Frame(t_us, image=np.ascontiguousarray(img[:, :, 0] if ch == 1 else img))
 
     def camera(self, width: int, height: int) -> Camera | None:
+        if not self._info:
+            return None
         for _, _, raw in self._reader.messages(connections=self._info):
             m = self._deserialize(raw, "sensor_msgs/msg/CameraInfo")
             K = np.asarray(m.K if hasattr(m, "K") else m.k, dtype=np.float64)

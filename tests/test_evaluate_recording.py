@@ -1,0 +1,76 @@
+"""Evaluation of a recording by the ground truth it carries: GT poses (ATE after Sim(3)) and APS
+frames (event frames against the nearest APS frame), with no GT surface."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import imageio.v3 as iio
+import numpy as np
+import pytest
+
+from evdense.evaluate.stage import EvalConfig, evaluate_against_reference, evaluate_source
+from evdense.poses import look_at, write_tum
+
+
+def _frames(folder: Path, images: list[np.ndarray], times: list[float]) -> Path:
+    folder.mkdir(parents=True)
+    for i, img in enumerate(images):
+        iio.imwrite(folder / f"{i:06d}.png", img)
+    (folder / "timestamps.txt").write_text("".join(f"{i} {t:.6f}\n" for i, t in enumerate(times)))
+    return folder
+
+
+def _texture(rng, h=60, w=80) -> np.ndarray:
+    from scipy.ndimage import gaussian_filter
+
+    return (255 * np.clip(gaussian_filter(rng.random((h + 8, w + 8)), 2) * 4 - 1.5, 0, 1)).astype(
+        np.uint8
+    )
+
+
+def test_frames_against_nearest_aps_frame(tmp_path, rng):
+    tex = [_texture(rng) for _ in range(3)]
+    aps = _frames(tmp_path / "aps", [t[4:64, 4:84] for t in tex], [0.0, 0.1, 0.2])
+    # event frames at 4x the APS rate; the ones nearest each APS frame show its scene, shifted by
+    # 2 px and with another gain and offset; the others show noise
+    imgs, times = [], []
+    for k in range(9):
+        t = 0.025 * k
+        j = int(round(t / 0.1))
+        if abs(t - 0.1 * j) < 1e-9:
+            imgs.append((0.5 * tex[j][4:64, 6:86] + 60).astype(np.uint8))
+        else:
+            imgs.append(rng.integers(0, 255, (60, 80), dtype=np.uint8))
+        times.append(t + 0.001)
+    ev = _frames(tmp_path / "ev", imgs, times)
+    res = evaluate_against_reference(ev, aps, EvalConfig())
+    assert res["reference"] == "aps_nearest" and res["num_frames"] == 3
+    assert res["ssim"] > 0.97 and res["mse"] < 1e-3
+    # against the wrong frames (the noise ones) the score drops
+    noise = _frames(tmp_path / "noise", [imgs[1], imgs[5], imgs[7]], [0.0, 0.1, 0.2])
+    assert evaluate_against_reference(noise, aps, EvalConfig())["ssim"] < 0.3
+
+
+def test_recording_without_gt_surface_scores_its_trajectory(tmp_path):
+    gt, sfm = tmp_path / "gt", tmp_path / "sfm"
+    gt.mkdir()
+    sfm.mkdir()
+    t = np.linspace(0, 1, 30)
+    poses = np.stack([look_at(np.array([0.5 * s, 0.0, -2.0]), np.zeros(3)) for s in t])
+    write_tum(gt / "trajectory.txt", t, poses)
+    # SfM's trajectory: the same path in another frame (scale 3, shifted), at frame times only
+    est = poses[::3].copy()
+    est[:, :3, 3] = 3 * est[:, :3, 3] + np.array([1.0, 2.0, 3.0])
+    write_tum(sfm / "trajectory.txt", t[::3], est)
+    (sfm / "stats.json").write_text(json.dumps({"num_registered": 10, "num_selected": 10}))
+    out = evaluate_source(gt, sfm, tmp_path / "m.json", labels={"dataset": "rec"})
+    assert out["geometry"] == {} and "images" not in out
+    assert out["trajectory"]["ate_rmse"] == pytest.approx(0.0, abs=1e-6)
+    assert out["trajectory"]["scale"] == pytest.approx(1 / 3)
+    assert json.loads((tmp_path / "m.json").read_text())["trajectory"]["num_poses"] == 10
+    # a failed SfM is recorded as failed, with no trajectory
+    (sfm / "stats.json").write_text(json.dumps({"failed": True, "error": "2 of 10 registered"}))
+    out = evaluate_source(gt, sfm, tmp_path / "m2.json")
+    assert out["failed"] and "trajectory" not in out
