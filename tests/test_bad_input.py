@@ -209,3 +209,20 @@ def test_image_paths_stay_inside_the_recording(tmp_path, rng):
             ingest_recording(tmp_path / "rec", tmp_path / "e.h5",
                              conventional_dir=tmp_path / "conv", width=64, height=48)  # fmt: skip
         assert not (tmp_path / "conv" / "frames").exists()
+
+
+def test_mcap_record_length_beyond_the_file_is_refused_before_reading(tmp_path, anchors):
+    import shutil
+    import struct
+
+    src = anchors / "data" / "ros" / "event_camera_msgs_evt3_ros2"
+    bag = tmp_path / "bag"
+    shutil.copytree(src, bag)
+    mcap = next(bag.glob("*.mcap"))
+    data = bytearray(mcap.read_bytes())
+    data[9:17] = struct.pack("<Q", 2**61)  # the first record's length: rosbags would allocate it
+    mcap.write_bytes(bytes(data))
+    with pytest.raises(InputError) as e:
+        ingest_recording(bag, tmp_path / "e.h5")
+    assert str(mcap) in str(e.value) and "byte offset 8" in str(e.value)
+    assert not (tmp_path / "e.h5").exists()

@@ -73,6 +73,9 @@ def _open_ros2(path: Path):
     from rosbags.rosbag2 import Reader, ReaderError
 
     target = path
+    if path.is_dir() or path.suffix.lower() == ".mcap":
+        for mcap in [path] if path.is_file() else sorted(path.glob("*.mcap")):
+            check_mcap_records(mcap)
     if path.is_dir():
         import yaml
 
@@ -134,6 +137,58 @@ def check_rosbag1_records(path: Path) -> None:
                     raise ValueError(f"{path}: chunk at byte offset {pos} says it unpacks to "
                                      f"{usize} bytes (limit {MAX_CHUNK_BYTES})")  # fmt: skip
             pos += 8 + hlen + dlen
+
+
+def check_mcap_records(path: Path) -> None:
+    """Walk the records of an MCAP file and check what ``rosbags`` would allocate or seek from
+    before it does: every record's length against the file, every chunk's stated uncompressed
+    size against :data:`MAX_CHUNK_BYTES`, and the footer's and chunk indexes' offsets against the
+    records actually there. ``ValueError`` naming the byte offset otherwise."""
+    size = path.stat().st_size
+    starts: dict[int, tuple[int, int]] = {}  # offset -> (opcode, total length)
+    footer: bytes | None = None
+    chunk_indexes: list[tuple[int, int, int]] = []
+    with open(path, "rb") as f:
+        if f.read(8) != MCAP_MAGIC:
+            raise ValueError(f"{path}: not an MCAP file (bad magic)")
+        pos = 8
+        while pos < size:
+            f.seek(pos)
+            head = f.read(9)
+            if len(head) < 9:
+                if pos + 8 == size and head[:8] == MCAP_MAGIC[:8][: len(head)]:
+                    break
+                raise ValueError(f"{path}: truncated MCAP record at byte offset {pos}")
+            if head[:8] == MCAP_MAGIC and pos + 8 == size:
+                break
+            op, n = head[0], struct.unpack_from("<Q", head, 1)[0]
+            if pos + 9 + n > size:
+                raise ValueError(f"{path}: MCAP record at byte offset {pos} claims {n} bytes, "
+                                 "beyond the end of the file")  # fmt: skip
+            starts[pos] = (op, 9 + n)
+            if op == 0x06:  # chunk: start, end, uncompressed size, ...
+                if n < 24:
+                    raise ValueError(f"{path}: MCAP chunk at byte offset {pos} is too short")
+                (usize,) = struct.unpack("<Q", f.read(24)[16:24])
+                if usize > MAX_CHUNK_BYTES:
+                    raise ValueError(f"{path}: MCAP chunk at byte offset {pos} says it unpacks "
+                                     f"to {usize} bytes (limit {MAX_CHUNK_BYTES})")  # fmt: skip
+            elif op == 0x08 and n >= 32:  # chunk index: start, end, chunk offset, chunk length
+                b = f.read(32)
+                chunk_indexes.append((pos, *struct.unpack_from("<QQ", b, 16)))
+            elif op == 0x02 and n >= 16:  # footer: summary start, summary offset start
+                footer = f.read(16)
+            pos += 9 + n
+    for at, off, length in chunk_indexes:
+        if starts.get(off, (None, None)) != (0x06, length):
+            raise ValueError(f"{path}: MCAP chunk index at byte offset {at} points at byte {off}, "
+                             "where no chunk of that length starts")  # fmt: skip
+    if footer is not None:
+        for off in struct.unpack("<QQ", footer):
+            if off and off not in starts:
+                raise ValueError(
+                    f"{path}: MCAP footer points at byte {off}, where no record starts"
+                )
 
 
 def decode_event_array(raw: bytes) -> tuple[int, int, np.ndarray]:
