@@ -74,3 +74,42 @@ def test_recording_without_gt_surface_scores_its_trajectory(tmp_path):
     (sfm / "stats.json").write_text(json.dumps({"failed": True, "error": "2 of 10 registered"}))
     out = evaluate_source(gt, sfm, tmp_path / "m2.json")
     assert out["failed"] and "trajectory" not in out
+
+
+def test_gt_mesh_of_a_recording_is_imported_and_checked(tmp_path, rng):
+    import open3d as o3d
+
+    from evdense.errors import InputError
+    from evdense.io import ingest_recording
+    from evdense.io.text import write_rpg_text
+
+    t = np.arange(100) * 100
+    write_rpg_text(tmp_path / "rec", t, rng.integers(0, 32, 100), rng.integers(0, 24, 100),
+                   rng.choice([-1, 1], 100))  # fmt: skip
+    box = o3d.geometry.TriangleMesh.create_box(1.0, 2.0, 3.0)
+    o3d.io.write_triangle_mesh(str(tmp_path / "scan.obj"), box)
+    res = ingest_recording(tmp_path / "rec", tmp_path / "out" / "e.h5", gt_dir=tmp_path / "gt",
+                           width=32, height=24, gt_mesh=tmp_path / "scan.obj")  # fmt: skip
+    got = o3d.io.read_triangle_mesh(str(tmp_path / "gt" / "mesh.ply"))
+    assert res.gt_mesh == str(tmp_path / "gt" / "mesh.ply") and len(got.triangles) == 12
+    np.testing.assert_allclose(got.get_max_bound(), [1.0, 2.0, 3.0])
+    # a point cloud is not a surface: refused, naming the file, and no event file left
+    pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(rng.random((50, 3))))
+    o3d.io.write_point_cloud(str(tmp_path / "cloud.ply"), pcd)
+    with pytest.raises(InputError) as e:
+        ingest_recording(tmp_path / "rec", tmp_path / "out2" / "e.h5", gt_dir=tmp_path / "gt2",
+                         width=32, height=24, gt_mesh=tmp_path / "cloud.ply")  # fmt: skip
+    assert str(tmp_path / "cloud.ply") in str(e.value) and "no triangles" in str(e.value)
+    assert not (tmp_path / "out2" / "e.h5").exists()
+
+
+def test_gt_mesh_key_is_checked_in_the_config(tmp_path):
+    from evdense.config import ConfigError, check_config, validate_config
+
+    (tmp_path / "rec.txt").write_text("0 1 1 1\n")
+    conf = validate_config({"datasets": {"r": {"recording": "rec.txt", "gt_mesh": "no.ply"}}})
+    with pytest.raises(ConfigError, match=r"datasets\.r\.gt_mesh.*no such file"):
+        check_config(conf, base_dir=tmp_path)
+    conf = validate_config({"datasets": {"s": {"scene": "room", "gt_mesh": "x.ply"}}})
+    with pytest.raises(ConfigError, match=r"datasets\.s\.gt_mesh.*only for a recording"):
+        check_config(conf, base_dir=tmp_path)

@@ -169,11 +169,13 @@ def check_config(config: dict[str, Any], base_dir: str | Path = ".") -> None:
                 rec = base_dir / rec
             if not rec.exists():
                 raise ConfigError(f"config key 'datasets.{name}.recording': no such file {rec}")
-            if ds.get("calibration") and not (base_dir / ds["calibration"]).exists():
-                raise ConfigError(
-                    f"config key 'datasets.{name}.calibration': no such file {ds['calibration']}"
-                )
+            for key in ("calibration", "gt_mesh"):
+                if ds.get(key) and not (base_dir / ds[key]).exists():
+                    raise ConfigError(f"config key 'datasets.{name}.{key}': no such file {ds[key]}")
             continue
+        if ds.get("gt_mesh"):
+            raise ConfigError(f"config key 'datasets.{name}.gt_mesh': only for a recording (a "
+                              "synthetic scene has its own GT)")  # fmt: skip
         try:
             from evdense.sim.scene import load_scene
         except ImportError:  # simulator not installed in this build

@@ -8,11 +8,13 @@
 
 
 def ingest_inputs(wildcards):
-    """The recording, and the calibration file when the dataset names one."""
+    """The recording, and the calibration and GT mesh files when the dataset names them."""
     ds = DATASETS[wildcards.dataset]
     inputs = {"recording": ds["recording"]}
     if ds.get("calibration"):
         inputs["calibration"] = ds["calibration"]
+    if ds.get("gt_mesh"):
+        inputs["gt_mesh"] = ds["gt_mesh"]
     return inputs
 
 

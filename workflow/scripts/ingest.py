@@ -18,4 +18,5 @@ ingest_recording(
     height=ds.get("height"),
     config=IngestConfig.from_dict(sm.params.conf),
     reader_options={"topic": ds["topic"]} if ds.get("topic") else None,
+    gt_mesh=sm.input.get("gt_mesh"),
 )

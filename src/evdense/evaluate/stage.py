@@ -279,7 +279,7 @@ def evaluate_source(
             "mean_reprojection_error_px",
         )
     }
-    if not (gt_dir / "mesh.ply").is_file():
+    if not all((gt_dir / f).is_file() for f in ("mesh.ply", "trajectory.txt", "intrinsics.yaml")):
         return _evaluate_without_gt_geometry(gt_dir, sfm_dir, out_path, frames_dir, conf,
                                              result, sfm_stats, reference_frames)  # fmt: skip
     gt_mesh = o3d.io.read_triangle_mesh(str(gt_dir / "mesh.ply"))
@@ -298,8 +298,12 @@ def evaluate_source(
             np.zeros((0, 3)), gt_mesh, conf.relative_thresholds, 1000, gt_samples=gt_samples
         ).to_dict()
         result["geometry"] = {name: empty for name in ["sparse", "dense", *(meshes or {})]}
-        if frames_dir is not None:
+        if frames_dir is not None and reference_frames is None:
             result["images"] = evaluate_images(Path(frames_dir), gt_dir, conf)
+        elif frames_dir is not None:
+            result["images"] = evaluate_against_reference(
+                Path(frames_dir), Path(reference_frames), conf
+            )
         _write_json_atomic(out_path, result)
         return result
     t_gt, T_gt = read_tum(gt_dir / "trajectory.txt")
@@ -343,10 +347,10 @@ def evaluate_source(
         "icp": H.tolist(),
     }
 
-    if "textured" in (meshes or {}) and Path(meshes["textured"]).exists():
-        result["textured_renders"] = evaluate_textured(
-            Path(meshes["textured"]), (s, R, t), H, gt_dir, conf
-        )
+    textured = (meshes or {}).get("textured")
+    if textured and Path(textured).exists() and (gt_dir / "scene.json").is_file():
+        # rendered against GT intensity, which only a synthetic scene has
+        result["textured_renders"] = evaluate_textured(Path(textured), (s, R, t), H, gt_dir, conf)
     geometry = {}
     for name, obj in aligned.items():
         if isinstance(obj, np.ndarray):

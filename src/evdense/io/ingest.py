@@ -97,6 +97,8 @@ class IngestResult:
     trajectory: str | None = None
     num_poses: int = 0
     trajectory_source: str | None = None
+    gt_mesh: str | None = None
+    gt_mesh_source: str | None = None
     corrections: list[str] = field(default_factory=list)
     validation: dict[str, Any] = field(default_factory=dict)
     reader: dict[str, Any] = field(default_factory=dict)
@@ -206,6 +208,29 @@ def _atomic_write(path: Path, write) -> None:
     os.replace(tmp, path)
 
 
+def import_gt_mesh(src: str | Path, out: Path) -> Path:
+    """Copy a ground-truth triangle mesh (any format Open3D reads) to ``out`` (PLY), checked:
+    ``ValueError`` naming ``src`` when it holds no triangles or non-finite vertices."""
+    import open3d as o3d
+
+    src = Path(src)
+    if not src.is_file():
+        raise FileNotFoundError(f"{src}: GT mesh not found")
+    mesh = o3d.io.read_triangle_mesh(str(src))
+    v = np.asarray(mesh.vertices)
+    if len(mesh.triangles) == 0:
+        raise ValueError(f"{src}: not a triangle mesh (no triangles read); gt_mesh needs a surface")
+    if not np.isfinite(v).all():
+        raise ValueError(f"{src}: GT mesh has non-finite vertex coordinates")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = out.with_name(out.stem + ".partial.ply")
+    if not o3d.io.write_triangle_mesh(str(tmp), mesh):
+        raise OSError(f"{tmp}: could not write the GT mesh")
+    os.replace(tmp, out)
+    log.info("%s: GT mesh (%d triangles) -> %s", src, len(mesh.triangles), out)
+    return out
+
+
 def ingest_recording(
     recording: str | Path,
     events_out: str | Path,
@@ -218,6 +243,7 @@ def ingest_recording(
     height: int | None = None,
     config: IngestConfig | None = None,
     reader_options: dict[str, Any] | None = None,
+    gt_mesh: str | Path | None = None,
 ) -> IngestResult:
     """Convert ``recording`` to the canonical event file ``events_out`` and copy its side data.
 
@@ -225,7 +251,8 @@ def ingest_recording(
     file's; when neither is known it is inferred as max + 1 with a warning); ``calibration``: an
     intrinsics file (our YAML, Kalibr/VINS YAML, COLMAP cameras.txt, RPG calib.txt) that takes
     precedence over calibration stored in the recording. ``conventional_dir``/``gt_dir``/
-    ``manifest_out`` are optional (see the module docstring). Raises ``ValueError`` naming the
+    ``manifest_out`` are optional (see the module docstring). ``gt_mesh``: the recording's GT
+    surface (a triangle mesh in the frame of its GT poses), written to ``gt_dir/mesh.ply``. Raises ``ValueError`` naming the
     file and position on bad input; no output appears under its final name unless complete.
     """
     cfg = config or IngestConfig()
@@ -237,14 +264,17 @@ def ingest_recording(
     try:
         result = _ingest(recording, events_out, staged, conventional_dir, gt_dir, fmt, calibration,
                          width, height, cfg, reader_options)  # fmt: skip
+        if gt_mesh is not None and gt_dir is not None:
+            result.gt_mesh = str(import_gt_mesh(gt_mesh, Path(gt_dir) / "mesh.ply"))
+            result.gt_mesh_source = str(gt_mesh)
     except (KeyboardInterrupt, MemoryError):
         staged.unlink(missing_ok=True)
         raise
     except Exception as e:
         staged.unlink(missing_ok=True)
-        cal_path = Path(calibration) if calibration else None
-        if cal_path is not None and str(cal_path) in str(e):
-            raise as_input_error(cal_path, e) from e
+        for side in (calibration, gt_mesh):
+            if side and str(Path(side)) in str(e):
+                raise as_input_error(Path(side), e) from e
         raise as_input_error(recording, e) from e
     os.replace(staged, events_out)
     if manifest_out is not None:
