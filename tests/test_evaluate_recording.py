@@ -88,10 +88,15 @@ def test_gt_mesh_of_a_recording_is_imported_and_checked(tmp_path, rng):
                    rng.choice([-1, 1], 100))  # fmt: skip
     box = o3d.geometry.TriangleMesh.create_box(1.0, 2.0, 3.0)
     o3d.io.write_triangle_mesh(str(tmp_path / "scan.obj"), box)
+    t_gt = np.linspace(0, 0.01, 5)
+    write_tum(tmp_path / "poses.txt", t_gt,
+              np.stack([look_at(np.array([s, 0.0, -2.0]), np.zeros(3)) for s in t_gt]))  # fmt: skip
     res = ingest_recording(tmp_path / "rec", tmp_path / "out" / "e.h5", gt_dir=tmp_path / "gt",
-                           width=32, height=24, gt_mesh=tmp_path / "scan.obj")  # fmt: skip
+                           width=32, height=24, gt_mesh=tmp_path / "scan.obj",
+                           gt_trajectory=tmp_path / "poses.txt")  # fmt: skip
     got = o3d.io.read_triangle_mesh(str(tmp_path / "gt" / "mesh.ply"))
     assert res.gt_mesh == str(tmp_path / "gt" / "mesh.ply") and len(got.triangles) == 12
+    assert res.num_poses == 5 and (tmp_path / "gt" / "trajectory.txt").is_file()
     np.testing.assert_allclose(got.get_max_bound(), [1.0, 2.0, 3.0])
     # a point cloud is not a surface: refused, naming the file, and no event file left
     pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(rng.random((50, 3))))

@@ -169,13 +169,14 @@ def check_config(config: dict[str, Any], base_dir: str | Path = ".") -> None:
                 rec = base_dir / rec
             if not rec.exists():
                 raise ConfigError(f"config key 'datasets.{name}.recording': no such file {rec}")
-            for key in ("calibration", "gt_mesh"):
+            for key in ("calibration", "gt_mesh", "gt_trajectory"):
                 if ds.get(key) and not (base_dir / ds[key]).exists():
                     raise ConfigError(f"config key 'datasets.{name}.{key}': no such file {ds[key]}")
             continue
-        if ds.get("gt_mesh"):
-            raise ConfigError(f"config key 'datasets.{name}.gt_mesh': only for a recording (a "
-                              "synthetic scene has its own GT)")  # fmt: skip
+        for key in ("gt_mesh", "gt_trajectory"):
+            if ds.get(key):
+                raise ConfigError(f"config key 'datasets.{name}.{key}': only for a recording (a "
+                                  "synthetic scene has its own GT)")  # fmt: skip
         try:
             from evdense.sim.scene import load_scene
         except ImportError:  # simulator not installed in this build

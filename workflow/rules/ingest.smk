@@ -8,13 +8,14 @@
 
 
 def ingest_inputs(wildcards):
-    """The recording, and the calibration and GT mesh files when the dataset names them."""
+    """The recording, and the calibration and GT files when the dataset names them."""
     ds = DATASETS[wildcards.dataset]
     inputs = {"recording": ds["recording"]}
     if ds.get("calibration"):
         inputs["calibration"] = ds["calibration"]
-    if ds.get("gt_mesh"):
-        inputs["gt_mesh"] = ds["gt_mesh"]
+    for key in ("gt_mesh", "gt_trajectory"):
+        if ds.get(key):
+            inputs[key] = ds[key]
     return inputs
 
 

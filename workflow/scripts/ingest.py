@@ -19,4 +19,5 @@ ingest_recording(
     config=IngestConfig.from_dict(sm.params.conf),
     reader_options={"topic": ds["topic"]} if ds.get("topic") else None,
     gt_mesh=sm.input.get("gt_mesh"),
+    gt_trajectory=sm.input.get("gt_trajectory"),
 )

@@ -38,7 +38,7 @@ from evdense.io.validate import (
     validate_stream,
 )
 from evdense.log import get_logger, progress
-from evdense.poses import write_tum
+from evdense.poses import read_tum, write_tum
 
 log = get_logger("io")
 
@@ -244,6 +244,7 @@ def ingest_recording(
     config: IngestConfig | None = None,
     reader_options: dict[str, Any] | None = None,
     gt_mesh: str | Path | None = None,
+    gt_trajectory: str | Path | None = None,
 ) -> IngestResult:
     """Convert ``recording`` to the canonical event file ``events_out`` and copy its side data.
 
@@ -252,7 +253,9 @@ def ingest_recording(
     intrinsics file (our YAML, Kalibr/VINS YAML, COLMAP cameras.txt, RPG calib.txt) that takes
     precedence over calibration stored in the recording. ``conventional_dir``/``gt_dir``/
     ``manifest_out`` are optional (see the module docstring). ``gt_mesh``: the recording's GT
-    surface (a triangle mesh in the frame of its GT poses), written to ``gt_dir/mesh.ply``. Raises ``ValueError`` naming the
+    surface (a triangle mesh in the frame of its GT poses), written to ``gt_dir/mesh.ply``;
+    ``gt_trajectory``: a TUM file of GT camera-to-world poses in the recording's clock (seconds),
+    which replaces any trajectory the recording holds. Raises ``ValueError`` naming the
     file and position on bad input; no output appears under its final name unless complete.
     """
     cfg = config or IngestConfig()
@@ -264,6 +267,14 @@ def ingest_recording(
     try:
         result = _ingest(recording, events_out, staged, conventional_dir, gt_dir, fmt, calibration,
                          width, height, cfg, reader_options)  # fmt: skip
+        if gt_trajectory is not None and gt_dir is not None:
+            t_gt, T_gt = read_tum(gt_trajectory)
+            if len(t_gt) < 2:
+                raise ValueError(f"{gt_trajectory}: a GT trajectory needs at least 2 poses")
+            _atomic_write(Path(gt_dir) / "trajectory.txt", lambda p: write_tum(p, t_gt, T_gt))
+            result.trajectory = str(Path(gt_dir) / "trajectory.txt")
+            result.num_poses = len(t_gt)
+            result.trajectory_source = str(gt_trajectory)
         if gt_mesh is not None and gt_dir is not None:
             result.gt_mesh = str(import_gt_mesh(gt_mesh, Path(gt_dir) / "mesh.ply"))
             result.gt_mesh_source = str(gt_mesh)
@@ -272,7 +283,7 @@ def ingest_recording(
         raise
     except Exception as e:
         staged.unlink(missing_ok=True)
-        for side in (calibration, gt_mesh):
+        for side in (calibration, gt_mesh, gt_trajectory):
             if side and str(Path(side)) in str(e):
                 raise as_input_error(Path(side), e) from e
         raise as_input_error(recording, e) from e
