@@ -14,6 +14,9 @@ machine:
 - ``bf16``: the optimised variant with ``precision="bfloat16"`` (weights, activations and state
   in bfloat16: fast where the CPU has AVX-512 BF16 or AMX).
 
+``--device cuda`` times the same on a GPU (each frame's result is copied back to the host, which
+waits for the GPU).
+
 Input: voxel grids (5 bins) of 25,000 random events per window. FireNet and FireNet+ use the
 published weights when the anchors folder is present (random weights otherwise); E2VID
 (lightweight) has random weights, which does not change its speed. Printed per network and
@@ -72,10 +75,14 @@ def frame(rec: NetworkReconstructor, v: np.ndarray, fused: bool) -> float:
     return time.perf_counter() - t0
 
 
-def compare(net: ReconstructionNet, grids: np.ndarray, warmup: int = 3) -> dict[str, float]:
-    opt = NetworkReconstructor(copy.deepcopy(net), channels_last=True)
-    ref = NetworkReconstructor(copy.deepcopy(net), channels_last=False)
-    bf = NetworkReconstructor(copy.deepcopy(net), channels_last=True, precision="bfloat16")
+def compare(
+    net: ReconstructionNet, grids: np.ndarray, warmup: int = 3, device: str = "cpu"
+) -> dict[str, float]:
+    opt = NetworkReconstructor(copy.deepcopy(net), device=device, channels_last=True)
+    ref = NetworkReconstructor(copy.deepcopy(net), device=device, channels_last=False)
+    bf = NetworkReconstructor(
+        copy.deepcopy(net), device=device, channels_last=True, precision="bfloat16"
+    )
     for v in grids[:warmup]:
         frame(opt, v, True)
         frame(ref, v, False)
@@ -107,12 +114,14 @@ def main() -> None:
     ap.add_argument("--frames", type=int, default=30)
     ap.add_argument("--threads", type=int, nargs="+", default=[2, 1])
     ap.add_argument("--nets", nargs="+", default=["firenet", "firenet_plus", "e2vid"])
+    ap.add_argument("--device", default="cpu", help="cpu or cuda (times include the copy back)")
     args = ap.parse_args()
     width, height = (int(v) for v in args.size.lower().split("x"))
     grids = voxels(args.frames + 3, width, height)
     omp = os.environ.get("OMP_WAIT_POLICY", "default")
+    where = torch.cuda.get_device_name() if args.device.startswith("cuda") else "CPU"
     print(
-        f"torch {torch.__version__}, {os.cpu_count()} CPUs, OMP_WAIT_POLICY {omp}, "
+        f"torch {torch.__version__} on {where}, {os.cpu_count()} CPUs, OMP_WAIT_POLICY {omp}, "
         f"{width}x{height}, {args.frames} frames; times in ms per frame"
     )
     print(
@@ -124,7 +133,7 @@ def main() -> None:
         net, origin = network(name)
         for threads in args.threads:
             torch.set_num_threads(threads)
-            r = compare(net, grids)
+            r = compare(net, grids, device=args.device)
             print(
                 f"{name:<14}{origin:<11}{threads:>7}{r['opt_median']:>12.1f}{r['opt_best']:>10.1f}"
                 f"{r['opt_cpu']:>9.1f}{r['ref_median']:>14.1f}{r['ref_best']:>12.1f}"

@@ -38,6 +38,7 @@ TINY = {
     "val_every": 30,
     "checkpoint_every": 15,
     "log_every": 10,
+    "device": "cpu",  # bit-identical resume is a CPU property; CUDA has its own test
     "data": {
         "width": 64,
         "height": 48,
@@ -195,6 +196,30 @@ def test_resume_gives_the_uninterrupted_state(tiny_set, tmp_path):
     sa, sb = a["optimizer"]["state"], b["optimizer"]["state"]
     assert all(torch.equal(sa[i]["exp_avg"], sb[i]["exp_avg"]) for i in sa)
     assert a["rng"] == b["rng"]
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="no CUDA device")
+def test_training_on_cuda_matches_cpu_and_resumes_on_cpu(tmp_path):
+    # planar sequences only: this set needs no open3d, so the test runs on a bare CUDA machine
+    base = {
+        **TINY, "max_steps": 6, "checkpoint_every": 3, "val_every": 3, "num_heldout_sequences": 0,
+        "data": {**TINY["data"], "planar_fraction": 1.0},
+    }  # fmt: skip
+    cpu = TrainConfig.from_dict(base)
+    path = generate_dataset(tmp_path / "planar.h5", cpu.data, cpu.splits(), seed=0)
+    gpu = TrainConfig.from_dict({**base, "device": "cuda"})
+    train_model(cpu, path, tmp_path / "cpu", tmp_path / "cpu.pt", max_steps=3)
+    train_model(gpu, path, tmp_path / "gpu", tmp_path / "gpu.pt", max_steps=3)
+    meta = json.loads((tmp_path / "gpu.json").read_text())
+    assert meta["provenance"]["device"].startswith("cuda")
+    v_vox, v_tgt = load_split(path, "val")
+    v_vox, v_tgt = normalize_windows(v_vox), torch.from_numpy(v_tgt)
+    w = cpu.loss_weights()
+    a = validate(load_checkpoint(tmp_path / "cpu.pt").net, v_vox, v_tgt, w)["loss"]
+    b = validate(load_checkpoint(tmp_path / "gpu.pt").net, v_vox, v_tgt, w)["loss"]
+    assert abs(a - b) < 0.05 * a  # same steps on the same crops: float rounding only
+    resumed = train_model(cpu, path, tmp_path / "gpu", tmp_path / "gpu.pt")  # a CUDA run, on CPU
+    assert resumed.step == 6
 
 
 def test_evaluation_scores_a_perfect_method_as_perfect(tiny_set):

@@ -564,6 +564,8 @@ def generate_dataset(
             f.attrs["splits"] = json.dumps(splits)
             for split, count in splits.items():
                 g = f.create_group(split)
+                if count == 0:  # an empty split: simulate nothing
+                    continue
                 max_attempts = 3 * count + 10
                 jobs = ((conf, split, _seed(seed, split, i)) for i in range(max_attempts))
                 results = pool.imap(_simulate_job, jobs) if pool else map(_simulate_job, jobs)

@@ -33,6 +33,7 @@ import torch
 
 from evdense.log import get_logger
 from evdense.recon.checkpoints import save_checkpoint
+from evdense.recon.inference import pick_device
 from evdense.recon.networks import FireNet, detach_states
 from evdense.training.data import TrainDataConfig, load_split, read_config
 from evdense.training.losses import LossWeights, reconstruction_loss, ssim
@@ -102,6 +103,10 @@ class TrainConfig:
     """Steps between loss lines in the log."""
     threads: int = 2
     """Torch CPU threads."""
+    device: str = "auto"
+    """Where to train: ``cpu``, ``cuda`` (or ``cuda:N``) or ``auto`` (CUDA when there is one). The
+    data set stays in CPU memory; each batch and the validation split go to the device. A run
+    resumes on either (checkpoints are loaded to the CPU first)."""
     time_budget_min: float = 0.0
     """Stop (after a checkpoint and a validation) when training has run this many minutes (0 = no limit)."""
     data: TrainDataConfig = field(default_factory=TrainDataConfig)
@@ -316,6 +321,13 @@ def _lr_at(step: int, conf: TrainConfig, spent_s: float = 0.0) -> float:
 # ---------------------------------------------------------------------------------------------
 
 
+def describe_device(dev: torch.device) -> str:
+    """``cpu (N threads)`` or ``cuda:0 (NVIDIA H200)``, for the log and the weights' provenance."""
+    if dev.type == "cuda":
+        return f"{dev} ({torch.cuda.get_device_name(dev)})"
+    return f"{dev} ({torch.get_num_threads()} threads)"
+
+
 def build_model(conf: TrainConfig) -> FireNet:
     """A FireNet with the run's hyper-parameters, initialised from ``conf.seed``."""
     torch.manual_seed(conf.seed)
@@ -343,6 +355,7 @@ def train_model(
     out_dir, weights_path = Path(out_dir), Path(weights_path)
     out_dir.mkdir(parents=True, exist_ok=True)
     torch.set_num_threads(conf.threads)
+    dev = pick_device(conf.device)
     data_conf = read_config(data_path)
     if (data_conf.bins, data_conf.width, data_conf.height) != (
         conf.data.bins, conf.data.width, conf.data.height,
@@ -351,11 +364,12 @@ def train_model(
     weights = conf.loss_weights()
     train = SequenceSampler(*load_split(data_path, "train"), conf)
     v_vox, v_tgt = load_split(data_path, "val")
-    v_vox = normalize_windows(v_vox, conf.voxel_clip)
-    v_tgt = torch.from_numpy(v_tgt)
+    v_vox = normalize_windows(v_vox, conf.voxel_clip).to(dev)
+    v_tgt = torch.from_numpy(v_tgt).to(dev)
 
-    cl = torch.channels_last  # faster convolutions on CPU (oneDNN)
-    net = build_model(conf).to(memory_format=cl)
+    cl = torch.channels_last  # faster convolutions on CPU (oneDNN) and on CUDA (cuDNN NHWC)
+    net = build_model(conf).to(device=dev, memory_format=cl)
+    log.info("training on %s", describe_device(dev))
     net.train()
     opt = torch.optim.Adam(net.parameters(), lr=conf.lr)
     rng = np.random.default_rng(conf.seed)
@@ -383,6 +397,7 @@ def train_model(
         "data_file": str(data_path),
         "data_recipe": asdict(data_conf),
         "seed": conf.seed,
+        "device": describe_device(dev),
         "target": "log radiance at the window end, per-sequence robust range "
         f"(percentiles {data_conf.target_percentiles}) mapped to [0, 1]",
         "input_normalization": "nonzero (non-zero voxels of each window to mean 0, std 1)",
@@ -418,6 +433,7 @@ def train_model(
         for g in opt.param_groups:
             g["lr"] = lr
         x, y = train.batch(rng)
+        x, y = x.to(dev, non_blocking=True), y.to(dev, non_blocking=True)
         states = None
         for c0 in range(0, conf.sequence_length, conf.tbptt_length):
             preds = []
