@@ -13,17 +13,12 @@ from PIL import Image
 from evdense.events.container import Events, write_events
 from evdense.events.voxel import VoxelConfig, VoxelFile, make_voxels
 from evdense.events.windows import WindowConfig, make_windows
+from evdense.formats.frames import FrameWriter, to_uint8
 from evdense.recon.checkpoints import load_checkpoint, save_checkpoint
 from evdense.recon.config import ReconstructConfig, resolve_config
 from evdense.recon.inference import NetworkReconstructor, reconstruct_frames
 from evdense.recon.networks import E2VID, FireNet
-from evdense.recon.postprocess import (
-    FrameWriter,
-    RobustRescaler,
-    standardize_nonzero,
-    to_uint8,
-    unsharp_mask,
-)
+from evdense.recon.postprocess import RobustRescaler, standardize_nonzero, unsharp_mask
 
 H, W = 40, 48
 

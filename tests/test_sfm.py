@@ -14,15 +14,13 @@ from scipy import ndimage
 from evdense.align import align_trajectory_to_gt
 from evdense.camera import Camera
 from evdense.config import load_schema, validate_config
+from evdense.formats.frames import Frame, read_frames
 from evdense.poses import read_tum
 from evdense.sfm import (
-    Frame,
     SfmConfig,
     SfmError,
     _calibrated_camera,
-    read_frames,
     read_sfm_trajectory,
-    resolve_frames_dir,
     run_sfm,
     select_frames,
     set_options,
@@ -229,19 +227,6 @@ def test_schema_defaults_are_the_dataclass_defaults():
     defaults = validate_config({})["sfm"]
     assert SfmConfig.from_dict(defaults) == SfmConfig()
     assert set(section["properties"]) == set(SfmConfig.__dataclass_fields__)
-
-
-def test_frames_folder_checks(tmp_path):
-    folder = _write_frames(tmp_path / "conv" / "frames", [np.zeros((8, 8), np.uint8)] * 3)
-    assert resolve_frames_dir(tmp_path / "conv") == folder  # the parent holding frames/ is accepted
-    assert [f.t for f in read_frames(folder)] == pytest.approx([0.0, 0.05, 0.1])
-    (folder / "000001.png").unlink()
-    with pytest.raises(
-        ValueError, match=r"timestamps\.txt:2: frame 1 listed but .*000001\.png does not exist"
-    ):
-        read_frames(folder)
-    with pytest.raises(ValueError, match="not a frames folder"):
-        resolve_frames_dir(tmp_path)
 
 
 def test_select_frames_every_k_count_and_change(tmp_path):

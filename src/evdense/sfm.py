@@ -35,6 +35,7 @@ from typing import Any
 import numpy as np
 
 from evdense.camera import Camera, load_camera
+from evdense.formats.frames import Frame, read_frames, resolve_frames_dir
 from evdense.log import get_logger
 from evdense.poses import invert_pose, write_tum
 
@@ -240,57 +241,7 @@ def set_options(obj: Any, values: dict[str, Any], where: str) -> Any:
     return obj
 
 
-# ---- frames folders ---------------------------------------------------------------------------
-@dataclass(frozen=True)
-class Frame:
-    """One frame of a frames folder."""
-
-    index: int
-    """Frame index from timestamps.txt."""
-    name: str
-    """File name inside the frames folder (``000000.png``)."""
-    t: float
-    """Timestamp, seconds."""
-
-
-def resolve_frames_dir(path: str | Path) -> Path:
-    """The folder holding the PNGs and ``timestamps.txt``: ``path`` itself or ``path/frames``."""
-    path = Path(path)
-    if (path / "timestamps.txt").is_file():
-        return path
-    if (path / "frames" / "timestamps.txt").is_file():
-        return path / "frames"
-    raise ValueError(f"{path}: no timestamps.txt here or in {path / 'frames'}; not a frames folder")
-
-
-def read_frames(frames_dir: str | Path) -> list[Frame]:
-    """Read a frames folder: ``timestamps.txt`` lines ``index t_seconds`` and ``<index:06d>.png``.
-
-    Raises ``ValueError`` naming the file when a line is malformed or a PNG is missing.
-    """
-    frames_dir = resolve_frames_dir(frames_dir)
-    ts_path = frames_dir / "timestamps.txt"
-    frames = []
-    for lineno, line in enumerate(ts_path.read_text().splitlines(), 1):
-        s = line.strip()
-        if not s or s.startswith("#"):
-            continue
-        parts = s.split()
-        if len(parts) < 2:
-            raise ValueError(f"{ts_path}:{lineno}: expected 'index t_seconds', got {s!r}")
-        try:
-            index, t = int(parts[0]), float(parts[1])
-        except ValueError:
-            raise ValueError(f"{ts_path}:{lineno}: expected 'index t_seconds', got {s!r}") from None
-        name = f"{index:06d}.png"
-        if not (frames_dir / name).is_file():
-            raise ValueError(
-                f"{ts_path}:{lineno}: frame {index} listed but {frames_dir / name} does not exist"
-            )
-        frames.append(Frame(index, name, t))
-    if not frames:
-        raise ValueError(f"{ts_path}: no frames listed")
-    return frames
+# ---- frames folders: evdense.formats.frames ---------------------------------------------------
 
 
 def _load_small_grey(path: Path, factor: int = 4) -> np.ndarray:

@@ -17,6 +17,8 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 
+from evdense.formats.frames import frame_paths_and_times  # noqa: E402
+
 
 def save_figure(fig, out_png: str | Path) -> list[Path]:
     """Save ``fig`` as PNG (150 dpi) and PDF beside it; returns both paths."""
@@ -79,17 +81,11 @@ def plot_metric_vs(
     return save_figure(fig, out_png)
 
 
-def _read_frames_table(frames_dir: Path) -> tuple[np.ndarray, np.ndarray]:
-    rows = np.loadtxt(frames_dir / "timestamps.txt", ndmin=2, comments="#")
-    return rows[:, 0].astype(int), rows[:, 1]
-
-
 def _nearest_frame(frames_dir: Path, t: float) -> np.ndarray:
     import imageio.v3 as iio
 
-    idx, ts = _read_frames_table(frames_dir)
-    k = int(np.argmin(np.abs(ts - t)))
-    img = iio.imread(frames_dir / f"{idx[k]:06d}.png")
+    paths, ts = frame_paths_and_times(frames_dir)
+    img = iio.imread(paths[int(np.argmin(np.abs(ts - t)))])
     return img if img.ndim == 2 else img[..., :3].mean(-1)
 
 
@@ -106,7 +102,7 @@ def frames_comparison(
     """
     sources = {k: Path(v) for k, v in sources.items()}
     if times_s is None:
-        spans = [_read_frames_table(p)[1] for p in sources.values()]
+        spans = [frame_paths_and_times(p)[1] for p in sources.values()]
         lo, hi = max(s.min() for s in spans), min(s.max() for s in spans)
         times_s = list(np.linspace(lo, hi, num + 2)[1:-1]) if hi > lo else [lo]
     fig, axes = plt.subplots(

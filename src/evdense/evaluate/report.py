@@ -8,6 +8,7 @@ import numpy as np
 import pandas as pd
 
 from evdense.evaluate import figures
+from evdense.formats.frames import is_frames_dir
 from evdense.log import get_logger
 
 log = get_logger("report")
@@ -64,7 +65,7 @@ def make_figures(df: pd.DataFrame, results_dir: str | Path, out_dir: str | Path)
         sources = {}
         for src in sorted(rows["source"], key=lambda s: (s in ("conventional", "gt"), s)):
             folder = _frames_dir(results_dir, dataset, src)
-            if (folder / "timestamps.txt").exists():
+            if is_frames_dir(folder):
                 sources[src] = folder
         if len(sources) >= 1:
             made += figures.frames_comparison(sources, out_dir / f"frames_{label}_{dataset}.png")

@@ -29,6 +29,7 @@ from evdense.evaluate.geometry import (
 )
 from evdense.evaluate.images import compare_to_gt
 from evdense.evaluate.trajectory import evaluate_trajectory
+from evdense.formats.frames import frame_paths_and_times
 from evdense.log import get_logger
 from evdense.poses import read_tum
 
@@ -202,22 +203,13 @@ def _apply_h(H: np.ndarray, pts: np.ndarray) -> np.ndarray:
     return pts @ H[:3, :3].T + H[:3, 3]
 
 
-def _read_frames(frames_dir: Path) -> tuple[list[Path], np.ndarray]:
-    ts_path = frames_dir / "timestamps.txt"
-    if not ts_path.exists():
-        raise ValueError(f"{frames_dir}: no timestamps.txt beside the frames")
-    rows = np.loadtxt(ts_path, ndmin=2, comments="#")
-    paths = [frames_dir / f"{int(i):06d}.png" for i in rows[:, 0]]
-    return paths, rows[:, 1]
-
-
 def evaluate_images(frames_dir: Path, gt_dir: Path, conf: EvalConfig) -> dict[str, Any]:
     """MSE, PSNR and SSIM of a frames folder against GT intensity rendered at the frames' times."""
     import imageio.v3 as iio
 
     from evdense.sim.groundtruth import render_gt_intensity
 
-    paths, ts = _read_frames(frames_dir)
+    paths, ts = frame_paths_and_times(frames_dir)
     if not paths:
         return {"num_frames": 0}
     pick = np.unique(
@@ -430,8 +422,8 @@ def evaluate_against_reference(
 
     if frames_dir.resolve() == reference_dir.resolve():
         return {"reference": "aps_nearest", "num_frames": 0, "note": "the source is the reference"}
-    paths, ts = _read_frames(frames_dir)
-    ref_paths, ref_ts = _read_frames(reference_dir)
+    paths, ts = frame_paths_and_times(frames_dir)
+    ref_paths, ref_ts = frame_paths_and_times(reference_dir)
     out: dict[str, Any] = {"reference": "aps_nearest", "num_frames": 0}
     if not paths or not ref_paths:
         return out
@@ -492,7 +484,7 @@ def evaluate_textured(
     v = apply_sim3(s, R, t, tm.vertices)
     tm.vertices = _apply_h(H, v)
     cam = load_camera(gt_dir / "intrinsics.yaml")
-    frame_t = np.loadtxt(gt_dir / "frames" / "timestamps.txt", ndmin=2)[:, 1]
+    frame_t = frame_paths_and_times(gt_dir / "frames")[1]
     mids = (frame_t[:-1] + frame_t[1:]) / 2
     if len(mids) == 0:
         return {"num_views": 0}

@@ -28,6 +28,7 @@ import numpy as np
 from evdense.camera import Camera, load_camera
 from evdense.errors import as_input_error
 from evdense.events.container import EventWriter
+from evdense.formats.frames import frame_name, write_timestamps
 from evdense.io.base import DEFAULT_CHUNK_EVENTS, Recording
 from evdense.io.detect import open_recording
 from evdense.io.validate import (
@@ -173,13 +174,13 @@ def _write_frames(rec: Recording, out_dir: Path) -> int:
     tmp = out_dir.with_name(out_dir.name + ".partial")
     shutil.rmtree(tmp, ignore_errors=True)
     n = 0
-    lines = []
+    times_us: list[int] = []
     last = None
     try:
         for fr in rec.iter_frames():
             if n == 0:
                 tmp.mkdir(parents=True)
-            name = tmp / f"{n:06d}.png"
+            name = tmp / frame_name(n)
             if fr.source is not None and fr.source.suffix.lower() == ".png":
                 shutil.copyfile(fr.source, name)
             else:
@@ -190,13 +191,13 @@ def _write_frames(rec: Recording, out_dir: Path) -> int:
             if last is not None and fr.t_us < last:
                 log.warning("%s: frame %d is earlier than the frame before it", rec.path, n)
             last = fr.t_us
-            lines.append(f"{n} {fr.t_us // 1_000_000}.{fr.t_us % 1_000_000:06d}")
+            times_us.append(int(fr.t_us))
             n += 1
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
     if n:
-        (tmp / "timestamps.txt").write_text("\n".join(lines) + "\n")
+        write_timestamps(tmp, range(n), times_us, unit="us")
         shutil.rmtree(out_dir, ignore_errors=True)
         os.replace(tmp, out_dir)
     return n

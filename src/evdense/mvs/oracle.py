@@ -22,6 +22,7 @@ from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation, Slerp
 
 from evdense.camera import Camera, load_camera
+from evdense.formats.frames import read_frames
 from evdense.log import get_logger
 from evdense.mvs.fusion import read_ply
 from evdense.mvs.io import read_colmap_array
@@ -41,26 +42,6 @@ class OracleConfig:
     depth_tolerance: float = 0.01
     """A point is visible in another frame when its depth there matches the GT depth within this
     relative tolerance."""
-
-
-def read_frame_times(frames_dir: str | Path) -> tuple[list[str], np.ndarray]:
-    """Names (``000000.png``...) and times (seconds) from a frames folder's ``timestamps.txt``."""
-    frames_dir = Path(frames_dir)
-    path = frames_dir / "timestamps.txt"
-    if not path.is_file():
-        raise ValueError(
-            f"{path}: missing (frames folders hold timestamps.txt with 'index t_seconds')"
-        )
-    names, times = [], []
-    for k, line in enumerate(path.read_text().splitlines(), 1):
-        parts = line.split()
-        if not parts or parts[0].startswith("#"):
-            continue
-        if len(parts) != 2:
-            raise ValueError(f"{path}:{k}: expected 'index t_seconds'")
-        names.append(f"{int(parts[0]):06d}.png")
-        times.append(float(parts[1]))
-    return names, np.asarray(times)
 
 
 def interpolate_poses(t_query: np.ndarray, t: np.ndarray, T_wc: np.ndarray) -> np.ndarray:
@@ -137,7 +118,8 @@ def _read_gt(gt_dir: Path) -> tuple[Camera, list[str], np.ndarray, np.ndarray]:
         if not (gt_dir / f).exists():
             raise ValueError(f"{gt_dir / f}: missing from the ground-truth folder")
     cam = load_camera(gt_dir / "intrinsics.yaml")
-    names, times = read_frame_times(gt_dir / "frames")
+    frames = read_frames(gt_dir / "frames")
+    names, times = [f.name for f in frames], np.array([f.t for f in frames])
     t, T = read_tum(gt_dir / "trajectory.txt")
     return cam, names, times, interpolate_poses(times, t, T)
 
@@ -250,7 +232,7 @@ def evaluate_mvs(
     cloud = read_ply(mvs_dir / "fused.ply")
     dist, diag = _mesh_distance(gt_dir / "mesh.ply", cloud.points)
     tau = threshold * diag
-    names, _ = read_frame_times(gt_dir / "frames")
+    names = [f.name for f in read_frames(gt_dir / "frames")]
     index = {nm: k for k, nm in enumerate(names)}
     maps = []
     gt_pts = []

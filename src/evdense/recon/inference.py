@@ -26,13 +26,13 @@ import torch
 
 from evdense.events.container import EventFile
 from evdense.events.voxel import VoxelFile
+from evdense.formats.frames import FrameWriter, frame_paths_and_times
 from evdense.log import get_logger, progress
 from evdense.recon.baselines import LogIntensityFilter
 from evdense.recon.checkpoints import load_checkpoint
 from evdense.recon.config import ReconstructConfig
 from evdense.recon.networks import ReconstructionNet, States
 from evdense.recon.postprocess import (
-    FrameWriter,
     RobustRescaler,
     standardize_nonzero,
     unsharp_mask,
@@ -140,15 +140,8 @@ class NetworkReconstructor:
 
 def read_reference_frames(frames_dir: str | Path) -> tuple[np.ndarray, list[Path]]:
     """Times (us) and PNG paths of a frames folder (``timestamps.txt``: ``index t_seconds``)."""
-    frames_dir = Path(frames_dir)
-    stamps = frames_dir / "timestamps.txt"
-    if not stamps.is_file():
-        raise ValueError(f"{frames_dir}: no timestamps.txt in the frames folder")
-    rows = np.loadtxt(stamps, ndmin=2)
-    if rows.size == 0:
-        return np.zeros(0, np.int64), []
-    idx, t_s = rows[:, 0].astype(int), rows[:, 1]
-    return np.rint(t_s * 1e6).astype(np.int64), [frames_dir / f"{i:06d}.png" for i in idx]
+    paths, t_s = frame_paths_and_times(frames_dir, allow_empty=True)
+    return np.rint(t_s * 1e6).astype(np.int64), paths
 
 
 def _log_frame(path: Path, shape: tuple[int, int], eps: float = 1.0 / 255) -> np.ndarray:

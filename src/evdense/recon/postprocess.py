@@ -1,24 +1,19 @@
-"""Pre- and post-processing around reconstruction: input normalisation, tone mapping, frame folders.
+"""Pre- and post-processing around reconstruction: input normalisation, tone mapping.
 
 - :func:`standardize_nonzero`: the published input normalisation of E2VID and FireNet (non-zero
   voxels to mean 0, std 1); the "+" models take raw voxels.
 - :func:`unsharp_mask`, :class:`RobustRescaler` ("auto HDR": robust min/max from percentiles,
   medians over recent frames so that the brightness does not flicker).
-- :class:`FrameWriter`: one folder of 8-bit PNGs ``000000.png, ...`` plus ``timestamps.txt``
-  (``index t_seconds``), built in a temporary folder and renamed when complete.
+
+The frames folder the reconstruction writes is defined in :mod:`evdense.formats.frames`.
 """
 
 from __future__ import annotations
 
-import os
-import shutil
-import tempfile
 from collections import deque
-from pathlib import Path
 
 import numpy as np
 import torch
-from PIL import Image
 from scipy.ndimage import gaussian_filter
 
 
@@ -100,60 +95,3 @@ class RobustRescaler:
         scale = 1.0 / (hi - lo) if hi > lo else 0.0
         out = (image.astype(np.float32) - np.float32(lo)) * np.float32(scale)
         return np.clip(out, 0.0, 1.0, out=out)
-
-
-def to_uint8(image: np.ndarray) -> np.ndarray:
-    """An image in [0, 1] (H, W) as 8-bit grey values (rounded, clipped)."""
-    return np.clip(np.rint(image * 255.0), 0, 255).astype(np.uint8)
-
-
-class FrameWriter:
-    """Write a frames folder (``000000.png``, ... and ``timestamps.txt``) atomically.
-
-    Use as a context manager. Frames go to a temporary folder beside ``out_dir``, which is
-    renamed to ``out_dir`` (replacing an older one) only when the block exits cleanly; on an
-    exception the temporary folder is deleted, so ``out_dir`` is always complete or absent.
-    """
-
-    def __init__(self, out_dir: str | Path, compress_level: int = 1) -> None:
-        self.out_dir = Path(out_dir)
-        self.compress_level = compress_level
-        self.out_dir.parent.mkdir(parents=True, exist_ok=True)
-        self._tmp = Path(
-            tempfile.mkdtemp(
-                prefix=f".{self.out_dir.name}.", suffix=".partial", dir=self.out_dir.parent
-            )
-        )
-        self._stamps: list[str] = []
-
-    def __enter__(self) -> FrameWriter:
-        return self
-
-    def __exit__(self, exc_type, exc, tb) -> None:
-        if exc_type is None:
-            self.close()
-        else:
-            self.abort()
-
-    def __len__(self) -> int:
-        return len(self._stamps)
-
-    def write(self, image: np.ndarray, t_s: float) -> Path:
-        """Add one frame: ``image`` (H, W) float in [0, 1] or uint8, ``t_s`` its time in seconds."""
-        img = image if image.dtype == np.uint8 else to_uint8(image)
-        i = len(self._stamps)
-        path = self._tmp / f"{i:06d}.png"
-        Image.fromarray(img).save(path, compress_level=self.compress_level)
-        self._stamps.append(f"{i} {t_s:.6f}")
-        return path
-
-    def close(self) -> Path:
-        """Write ``timestamps.txt`` and move the folder to ``out_dir``."""
-        (self._tmp / "timestamps.txt").write_text("".join(s + "\n" for s in self._stamps))
-        if self.out_dir.exists():
-            shutil.rmtree(self.out_dir)
-        os.replace(self._tmp, self.out_dir)
-        return self.out_dir
-
-    def abort(self) -> None:
-        shutil.rmtree(self._tmp, ignore_errors=True)

@@ -26,6 +26,7 @@ from typing import Any
 import imageio.v3 as iio
 import numpy as np
 
+from evdense.formats.frames import frame_name, write_timestamps
 from evdense.log import get_logger, progress
 from evdense.sim.esim import RadianceFn
 
@@ -267,12 +268,10 @@ def simulate_frames(
             else:
                 scale = math.exp(log_scale)
             frame = expose(img, scale, config, rng)
-            iio.imwrite(tmp / "frames" / f"{i:06d}.png", frame)
+            iio.imwrite(tmp / "frames" / frame_name(i), frame)
             sat = float(np.mean(img * scale >= config.full_well_e))
             records.append(FrameRecord(i, float(t0 + exp / 2), n, scale, sat))
-        (tmp / "frames" / "timestamps.txt").write_text(
-            "".join(f"{r.index} {r.t:.9f}\n" for r in records)
-        )
+        write_timestamps(tmp / "frames", [r.index for r in records], [r.t for r in records])
         settings = {
             "camera": config.to_dict(),
             "exposure_s": exp,

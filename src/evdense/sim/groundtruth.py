@@ -22,6 +22,7 @@ import h5py
 import imageio.v3 as iio
 import numpy as np
 
+from evdense.formats.frames import frame_name, write_timestamps
 from evdense.log import get_logger, progress
 from evdense.poses import write_tum
 from evdense.sim.render import Renderer
@@ -147,9 +148,8 @@ def write_groundtruth(dataset_conf: dict, sim_conf: dict, out_dir: Path) -> None
             hi = max(hi, lo * 1.01)
             fi.attrs["tonemap_lo_hi"] = [float(lo), float(hi)]
             for i in range(n):
-                iio.imwrite(tmp / "frames" / f"{i:06d}.png", tonemap_log(di[i], lo, hi))
-        lines = "".join(f"{i} {t:.9f}\n" for i, t in enumerate(times))
-        (tmp / "frames" / "timestamps.txt").write_text(lines)
+                iio.imwrite(tmp / "frames" / frame_name(i), tonemap_log(di[i], lo, hi))
+        write_timestamps(tmp / "frames", range(len(times)), times)
 
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)  # never leave a half-written folder behind
