@@ -35,7 +35,9 @@ from typing import Any
 import numpy as np
 
 from evdense.camera import Camera, load_camera
+from evdense.formats.files import write_json_atomic
 from evdense.formats.frames import Frame, read_frames, resolve_frames_dir
+from evdense.formats.status import STATS_NAME, is_failed
 from evdense.log import get_logger
 from evdense.poses import invert_pose, write_tum
 
@@ -415,12 +417,6 @@ def _camera_stats(rec) -> dict[str, Any]:
     return out
 
 
-def _write_json(path: Path, data: dict[str, Any]) -> None:
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(json.dumps(data, indent=2, default=str))
-    tmp.replace(path)
-
-
 @dataclass
 class _Options:
     """The pycolmap option objects of one run."""
@@ -667,7 +663,7 @@ def run_sfm(
             time_s=times,
         )
         diag_path = work / "diagnostics.json"
-        _write_json(diag_path, diagnostics)
+        write_json_atomic(diag_path, diagnostics)
         fpi = diagnostics["features_per_image"]
         message = (
             f"SfM on {frames_dir}: {n_reg} of {len(names)} selected frames registered (need {needed}). "
@@ -722,7 +718,7 @@ def run_sfm(
         "config": asdict(cfg),
         "pycolmap_version": pycolmap.__version__,
     }
-    _write_json(work / "stats.json", stats)
+    write_json_atomic(work / "stats.json", stats)
     if out_dir.exists():
         shutil.rmtree(out_dir)
     work.replace(out_dir)
@@ -756,7 +752,7 @@ def write_failed_sfm(out_dir: str | Path, error: SfmError) -> Path:
     message = str(error)
     if error.diagnostics_path is not None:  # the diagnostics move into the recorded folder
         message = message.replace(str(error.diagnostics_path), str(out_dir / "diagnostics.json"))
-        _write_json(tmp / "diagnostics.json", diagnostics)
+        write_json_atomic(tmp / "diagnostics.json", diagnostics)
     stats = {
         "failed": True,
         "error": message,
@@ -764,7 +760,7 @@ def write_failed_sfm(out_dir: str | Path, error: SfmError) -> Path:
         "registered_fraction": 0.0,
         "diagnostics": diagnostics,
     }
-    _write_json(tmp / "stats.json", stats)
+    write_json_atomic(tmp / "stats.json", stats)
     if out_dir.exists():
         shutil.rmtree(out_dir)
     tmp.rename(out_dir)
@@ -777,8 +773,7 @@ def write_failed_sfm(out_dir: str | Path, error: SfmError) -> Path:
 
 def sfm_failed(sfm_dir: str | Path) -> bool:
     """True when an SfM output folder records a failure (see :func:`write_failed_sfm`)."""
-    p = Path(sfm_dir) / "stats.json"
-    return p.exists() and bool(json.loads(p.read_text()).get("failed", False))
+    return is_failed(Path(sfm_dir) / STATS_NAME)
 
 
 def read_sfm_trajectory(sfm_dir: str | Path) -> tuple[np.ndarray, np.ndarray]:

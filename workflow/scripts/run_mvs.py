@@ -1,8 +1,9 @@
 """Snakemake adapter of rule run_mvs: sparse model + frames -> results/{dataset}/mvs/{source}/."""
 
-import json
 from pathlib import Path
 
+from evdense.formats.files import write_text_atomic
+from evdense.formats.status import EMPTY_CLOUD_PLY, SFM_FAILED, write_failed
 from evdense.log import setup_logging
 from evdense.mvs.stage import MVSConfig, run_mvs
 from evdense.sfm import sfm_failed
@@ -15,12 +16,8 @@ if __name__ == "__main__":
     if sfm_failed(sm.input.model):
         # SfM recorded a failure (sfm.on_failure: record): an empty cloud, marked failed.
         log.warning("%s: SfM failed, writing an empty dense cloud", sm.input.model)
-        out.mkdir(parents=True, exist_ok=True)
-        Path(sm.output.fused).write_text(
-            "ply\nformat ascii 1.0\nelement vertex 0\nproperty float x\nproperty float y\n"
-            "property float z\nend_header\n"
-        )
-        Path(sm.output.stats).write_text(json.dumps({"failed": True, "reason": "sfm failed"}))
+        write_text_atomic(sm.output.fused, EMPTY_CLOUD_PLY)
+        write_failed(sm.output.stats, SFM_FAILED)
     else:
         run_mvs(
             Path(sm.input.model) / "sparse" / "0",

@@ -12,7 +12,6 @@ intensity rendered at their timestamps.
 from __future__ import annotations
 
 import json
-import os
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -29,6 +28,7 @@ from evdense.evaluate.geometry import (
 )
 from evdense.evaluate.images import compare_to_gt
 from evdense.evaluate.trajectory import evaluate_trajectory
+from evdense.formats.files import write_json_atomic
 from evdense.formats.frames import frame_paths_and_times
 from evdense.log import get_logger
 from evdense.poses import read_tum
@@ -296,7 +296,7 @@ def evaluate_source(
             result["images"] = evaluate_against_reference(
                 Path(frames_dir), Path(reference_frames), conf
             )
-        _write_json_atomic(out_path, result)
+        write_json_atomic(out_path, result, default=float)
         return result
     t_gt, T_gt = read_tum(gt_dir / "trajectory.txt")
     traj_path = sfm_dir / "trajectory.txt"
@@ -372,7 +372,7 @@ def evaluate_source(
         result["images"] = evaluate_against_reference(
             Path(frames_dir), Path(reference_frames), conf
         )
-    _write_json_atomic(out_path, result)
+    write_json_atomic(out_path, result, default=float)
     return result
 
 
@@ -405,7 +405,7 @@ def _evaluate_without_gt_geometry(
         result["images"] = evaluate_against_reference(
             Path(frames_dir), Path(reference_frames), conf
         )
-    _write_json_atomic(out_path, result)
+    write_json_atomic(out_path, result, default=float)
     return result
 
 
@@ -449,13 +449,6 @@ def evaluate_against_reference(
         out.update({k: float(np.mean([m[k] for m in per])) for k in ("mse", "ssim")})
     out["num_frames"] = len(per)
     return out
-
-
-def _write_json_atomic(path: Path, data: dict) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + ".partial")
-    tmp.write_text(json.dumps(data, indent=2, default=float))
-    os.replace(tmp, path)
 
 
 def evaluate_textured(

@@ -28,6 +28,7 @@ import numpy as np
 from evdense.camera import Camera, load_camera
 from evdense.errors import as_input_error
 from evdense.events.container import EventWriter
+from evdense.formats.files import write_atomic
 from evdense.formats.frames import frame_name, write_timestamps
 from evdense.io.base import DEFAULT_CHUNK_EVENTS, Recording
 from evdense.io.detect import open_recording
@@ -203,12 +204,6 @@ def _write_frames(rec: Recording, out_dir: Path) -> int:
     return n
 
 
-def _atomic_write(path: Path, write) -> None:
-    tmp = path.with_name(path.name + ".partial")
-    write(tmp)
-    os.replace(tmp, path)
-
-
 def import_gt_mesh(src: str | Path, out: Path) -> Path:
     """Copy a ground-truth triangle mesh (any format Open3D reads) to ``out`` (PLY), checked:
     ``ValueError`` naming ``src`` when it holds no triangles or non-finite vertices."""
@@ -272,7 +267,7 @@ def ingest_recording(
             t_gt, T_gt = read_tum(gt_trajectory)
             if len(t_gt) < 2:
                 raise ValueError(f"{gt_trajectory}: a GT trajectory needs at least 2 poses")
-            _atomic_write(Path(gt_dir) / "trajectory.txt", lambda p: write_tum(p, t_gt, T_gt))
+            write_atomic(Path(gt_dir) / "trajectory.txt", lambda p: write_tum(p, t_gt, T_gt))
             result.trajectory = str(Path(gt_dir) / "trajectory.txt")
             result.num_poses = len(t_gt)
             result.trajectory_source = str(gt_trajectory)
@@ -292,7 +287,7 @@ def ingest_recording(
     if manifest_out is not None:
         manifest_out = Path(manifest_out)
         manifest_out.parent.mkdir(parents=True, exist_ok=True)
-        _atomic_write(
+        write_atomic(
             manifest_out,
             lambda p: p.write_text(json.dumps(asdict(result), indent=2, default=str) + "\n"),
         )
@@ -388,14 +383,14 @@ def _ingest(
             gt_dir = Path(gt_dir)
             gt_dir.mkdir(parents=True, exist_ok=True)
             if cal is not None:
-                _atomic_write(gt_dir / "intrinsics.yaml", cal.write_yaml)
-                _atomic_write(gt_dir / "cameras.txt", cal.write_colmap_cameras_txt)
+                write_atomic(gt_dir / "intrinsics.yaml", cal.write_yaml)
+                write_atomic(gt_dir / "cameras.txt", cal.write_colmap_cameras_txt)
                 result.intrinsics = str(gt_dir / "intrinsics.yaml")
                 result.cameras_txt = str(gt_dir / "cameras.txt")
                 result.intrinsics_source = cam_src
             traj = rec.trajectory()
             if traj is not None:
-                _atomic_write(gt_dir / "trajectory.txt", lambda p: write_tum(p, traj.t, traj.T_wc))
+                write_atomic(gt_dir / "trajectory.txt", lambda p: write_tum(p, traj.t, traj.T_wc))
                 result.trajectory = str(gt_dir / "trajectory.txt")
                 result.num_poses = len(traj.t)
                 result.trajectory_source = traj.source

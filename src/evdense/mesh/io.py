@@ -21,6 +21,7 @@ import numpy as np
 import open3d as o3d
 
 from evdense.camera import Camera
+from evdense.formats.files import atomic_path
 
 
 @dataclass
@@ -244,11 +245,9 @@ def make_mesh(vertices: np.ndarray, faces: np.ndarray) -> o3d.geometry.TriangleM
 def write_mesh(path: str | Path, mesh: o3d.geometry.TriangleMesh) -> Path:
     """Write a mesh atomically (a temporary name in the same folder, then rename); returns the path."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.stem}.partial{path.suffix}")
-    if not o3d.io.write_triangle_mesh(str(tmp), mesh, write_ascii=False):
-        raise ValueError(f"{path}: open3d could not write the mesh")
-    os.replace(tmp, path)
+    with atomic_path(path, keep_suffix=True) as tmp:
+        if not o3d.io.write_triangle_mesh(str(tmp), mesh, write_ascii=False):
+            raise ValueError(f"{path}: open3d could not write the mesh")
     return path
 
 

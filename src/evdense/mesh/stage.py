@@ -8,7 +8,6 @@ Every output is written under a temporary name and renamed when complete.
 from __future__ import annotations
 
 import dataclasses
-import json
 import os
 import shutil
 import time
@@ -18,6 +17,8 @@ from typing import Any
 
 import numpy as np
 
+from evdense.formats.files import write_json_atomic
+from evdense.formats.status import SFM_FAILED, STATS_NAME, is_failed, write_empty_products
 from evdense.log import get_logger
 from evdense.mesh.cleanup import CleanupConfig, clean_mesh
 from evdense.mesh.io import make_mesh, read_mesh, read_point_cloud, read_views, write_mesh
@@ -149,7 +150,7 @@ def refine_mesh(
     out.compute_vertex_normals()
     write_mesh(output, out)
     if stats is not None:
-        _write_json(
+        write_json_atomic(
             stats,
             {
                 "score_input": res.score_input,
@@ -180,7 +181,7 @@ def texture_mesh(
     if tmp.exists():
         shutil.rmtree(tmp)
     write_textured_mesh(tmp, tm, "mesh")
-    _write_json(
+    write_json_atomic(
         tmp / "texture.json",
         {
             "faces": len(tm.faces),
@@ -195,44 +196,13 @@ def texture_mesh(
     return output_dir
 
 
-def _write_json(path: str | Path, data: dict) -> None:
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + ".partial")
-    tmp.write_text(json.dumps(data, indent=2))
-    os.replace(tmp, path)
-
-
 # --- runs whose SfM failed (sfm.on_failure: record) ------------------------------------------
-EMPTY_PLY = "ply\nformat ascii 1.0\nelement vertex 0\nproperty float x\nproperty float y\nproperty float z\nelement face 0\nproperty list uchar int vertex_indices\nend_header\n"
-
-
 def upstream_failed(cloud: str | Path) -> bool:
     """True when the MVS output beside ``cloud`` records that its SfM failed."""
-    import json
-
-    stats = Path(cloud).parent / "stats.json"
-    return stats.exists() and bool(json.loads(stats.read_text()).get("failed", False))
+    return is_failed(Path(cloud).parent / STATS_NAME)
 
 
 def write_empty_outputs(paths: list[str | Path]) -> None:
-    """Write empty but valid files (PLY, OBJ, MTL, PNG, JSON, GLB) for a run whose SfM failed, so
-    a sweep goes on and the evaluation scores the run as empty."""
-    import json
-
-    import numpy as np
-
-    for p in map(Path, paths):
-        p.parent.mkdir(parents=True, exist_ok=True)
-        if p.suffix == ".ply":
-            p.write_text(EMPTY_PLY)
-        elif p.suffix == ".json":
-            p.write_text(json.dumps({"failed": True, "reason": "sfm failed"}))
-        elif p.suffix == ".png":
-            import imageio.v3 as iio
-
-            iio.imwrite(p, np.zeros((1, 1, 3), np.uint8))
-        elif p.suffix == ".obj":
-            p.write_text("# empty: SfM failed\nmtllib mesh.mtl\n")
-        else:
-            p.write_bytes(b"")
+    """Empty but valid products for a run whose SfM failed, so a sweep goes on and the evaluation
+    scores the run as empty (:func:`evdense.formats.status.write_empty_products`)."""
+    write_empty_products(paths, SFM_FAILED)

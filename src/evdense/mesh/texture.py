@@ -21,7 +21,6 @@ Export: OBJ + MTL + PNG, and a vertex-coloured PLY.
 from __future__ import annotations
 
 import json
-import os
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -33,6 +32,7 @@ import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 from scipy.sparse.linalg import factorized
 
+from evdense.formats.files import atomic_path
 from evdense.log import get_logger
 from evdense.mesh.geometry import (
     face_adjacency,
@@ -709,12 +709,10 @@ def write_glb(path: str | Path, tm: TexturedMesh) -> Path:
     js += b" " * ((-len(js)) % 4)
     binary = b"".join(blobs)
     total = 12 + 8 + len(js) + 8 + len(binary)
-    tmp = path.with_name(path.name + ".partial")
-    with open(tmp, "wb") as fh:
+    with atomic_path(path) as tmp, open(tmp, "wb") as fh:
         fh.write(struct.pack("<III", 0x46546C67, 2, total))
         fh.write(struct.pack("<II", len(js), 0x4E4F534A) + js)
         fh.write(struct.pack("<II", len(binary), 0x004E4942) + binary)
-    os.replace(tmp, path)
     return path
 
 

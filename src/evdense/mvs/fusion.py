@@ -19,13 +19,13 @@ in ``Reconstruction.reg_image_ids()`` order).
 
 from __future__ import annotations
 
-import os
 from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
 
+from evdense.formats.files import atomic_path
 from evdense.log import get_logger, progress
 from evdense.mvs.io import read_colmap_array, read_vis_file, write_vis_file
 from evdense.mvs.workspace import Workspace
@@ -271,13 +271,12 @@ def write_ply(path: str | Path, cloud: PointCloud, write_vis: bool = True) -> No
         "property float nx\nproperty float ny\nproperty float nz\n"
         "property uchar red\nproperty uchar green\nproperty uchar blue\nend_header\n"
     )
-    tmp = path.with_name(path.name + ".partial")
-    with open(tmp, "wb") as f:
-        f.write(header.encode("ascii"))
-        f.write(rec.tobytes())
-    if write_vis:
-        write_vis_file(Path(str(path) + ".vis"), cloud.visibility)
-    os.replace(tmp, path)
+    with atomic_path(path) as tmp:
+        with open(tmp, "wb") as f:
+            f.write(header.encode("ascii"))
+            f.write(rec.tobytes())
+        if write_vis:  # before the cloud appears, so that a cloud always has its .vis
+            write_vis_file(Path(str(path) + ".vis"), cloud.visibility)
 
 
 def read_ply(path: str | Path) -> PointCloud:

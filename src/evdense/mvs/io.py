@@ -9,11 +9,11 @@ channel (z-depth in the camera frame, metres or model units; 0 = invalid), norma
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import numpy as np
 
+from evdense.formats.files import atomic_path, write_atomic
 from evdense.log import get_logger
 
 log = get_logger("mvs")
@@ -32,11 +32,9 @@ def write_colmap_array(path: str | Path, array: np.ndarray) -> None:
     if a.ndim != 3 or min(a.shape) == 0:
         raise ValueError(f"{path}: expected an (H, W) or (H, W, C) array, got shape {a.shape}")
     h, w, c = a.shape
-    tmp = path.with_name(path.name + ".partial")
-    with open(tmp, "wb") as f:
+    with atomic_path(path) as tmp, open(tmp, "wb") as f:
         f.write(f"{w}&{h}&{c}&".encode("ascii"))
         f.write(np.ascontiguousarray(a.transpose(2, 0, 1)).astype("<f4").tobytes())
-    os.replace(tmp, path)
 
 
 def read_colmap_array(path: str | Path) -> np.ndarray:
@@ -77,9 +75,7 @@ def read_colmap_array(path: str | Path) -> np.ndarray:
 def _write_png_atomic(path: Path, image: np.ndarray) -> None:
     import imageio.v3 as iio
 
-    tmp = path.with_name(path.stem + ".partial" + path.suffix)
-    iio.imwrite(tmp, image)
-    os.replace(tmp, path)
+    write_atomic(path, lambda tmp: iio.imwrite(tmp, image), keep_suffix=True)
 
 
 def depth_preview(depth: np.ndarray, percentiles: tuple[float, float] = (2.0, 98.0)) -> np.ndarray:
@@ -136,11 +132,9 @@ def write_vis_file(path: str | Path, visibility: list[np.ndarray]) -> None:
         mask = np.ones(len(body), bool)
         mask[starts] = False
         body[mask] = np.concatenate([np.asarray(v, np.uint32) for v in visibility])
-    tmp = path.with_name(path.name + ".partial")
-    with open(tmp, "wb") as f:
+    with atomic_path(path) as tmp, open(tmp, "wb") as f:
         f.write(np.array([len(visibility)], "<u8").tobytes())
         f.write(body.astype("<u4").tobytes())
-    os.replace(tmp, path)
 
 
 def read_vis_file(path: str | Path) -> list[np.ndarray]:

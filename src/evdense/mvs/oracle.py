@@ -11,7 +11,6 @@ distance threshold) and the depth maps (median error against GT depth).
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -22,6 +21,7 @@ from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation, Slerp
 
 from evdense.camera import Camera, load_camera
+from evdense.formats.files import write_json_atomic
 from evdense.formats.frames import read_frames
 from evdense.log import get_logger
 from evdense.mvs.fusion import read_ply
@@ -296,10 +296,4 @@ def evaluate_mvs(
 
 def write_evaluation(path: str | Path, result: dict[str, Any]) -> None:
     """Write an evaluation dict as JSON (atomically)."""
-    import os
-
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + ".partial")
-    tmp.write_text(json.dumps(result, indent=1))
-    os.replace(tmp, path)
+    write_json_atomic(path, result, indent=1, default=None)

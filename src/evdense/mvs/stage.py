@@ -21,7 +21,6 @@ from __future__ import annotations
 import json
 import logging
 import multiprocessing
-import os
 import shutil
 import time
 from collections import OrderedDict
@@ -33,6 +32,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from evdense.formats.files import write_json_atomic
 from evdense.log import get_logger, progress
 from evdense.mvs.fusion import FusionConfig, fuse_workspace, write_ply
 from evdense.mvs.io import write_colmap_array, write_previews
@@ -148,13 +148,6 @@ def _write_maps(ws: Workspace, name: str, kind: str, m: DepthNormalMap) -> None:
     write_colmap_array(ws.map_path("cost", name, kind), m.cost)
 
 
-def _write_json(path: Path, data: dict[str, Any]) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + ".partial")
-    tmp.write_text(json.dumps(data, indent=1))
-    os.replace(tmp, path)
-
-
 def _map_stats_path(ws: Workspace, name: str, kind: str) -> Path:
     return ws.root / "stereo" / "stats" / f"{name}.{kind}.json"
 
@@ -211,7 +204,7 @@ class _Job:
                 self.view(i), [self.view(j) for j in src], rng, pm, device=self.device, name=im.name
             )
         _write_maps(ws, im.name, "photometric", m)
-        _write_json(
+        write_json_atomic(
             _map_stats_path(ws, im.name, "photometric"),
             {
                 "time_s": time.perf_counter() - t0,
@@ -219,6 +212,7 @@ class _Job:
                 "depth_range": rng,
                 "matched_fraction": float((m.cost < cfg.filter.max_cost).mean()),
             },
+            indent=1,
         )
 
     def geometric(self, i: int) -> None:
@@ -263,7 +257,7 @@ class _Job:
             write_previews(ws.preview_stem(im.name, "geometric"), out.depth, out.normal)
         kept = out.depth > 0
         checked = counts[counts >= 0] if counts is not None else np.zeros(0)
-        _write_json(
+        write_json_atomic(
             _map_stats_path(ws, im.name, "geometric"),
             {
                 "time_s": time.perf_counter() - t0,
@@ -271,6 +265,7 @@ class _Job:
                 "median_cost": float(np.median(out.cost[kept])) if kept.any() else MAX_COST,
                 "mean_agreeing_views": float(checked.mean()) if len(checked) else 0.0,
             },
+            indent=1,
         )
 
 
@@ -458,7 +453,7 @@ def _run_mvs(
         "config": _jsonable(asdict(cfg)),
         "maps": per_map,
     }
-    _write_json(out_dir / "stats.json", stats)
+    write_json_atomic(out_dir / "stats.json", stats, indent=1)
     log.info(
         "%s: %d views, %d fused points, %.1f s (median %.2f s per photometric map)",
         out_dir,

@@ -23,6 +23,7 @@ import numpy as np
 from scipy.sparse import csc_matrix
 
 from evdense.camera import Camera
+from evdense.formats.files import write_text_atomic
 from evdense.log import get_logger
 from evdense.mvs.io import read_colmap_array
 from evdense.mvs.patchmatch import DepthNormalMap, StereoView
@@ -334,9 +335,5 @@ def write_patch_match_cfg(ws: Workspace, sources: list[list[int]]) -> None:
     for im, src in zip(ws.images, sources, strict=True):
         lines.append(im.name)
         lines.append(", ".join(ws.images[j].name for j in src))
-    tmp = stereo / "patch-match.cfg.partial"
-    tmp.write_text("\n".join(lines) + "\n")
-    os.replace(tmp, stereo / "patch-match.cfg")
-    tmp = stereo / "fusion.cfg.partial"
-    tmp.write_text("".join(im.name + "\n" for im in ws.images))
-    os.replace(tmp, stereo / "fusion.cfg")
+    write_text_atomic(stereo / "patch-match.cfg", "\n".join(lines) + "\n")
+    write_text_atomic(stereo / "fusion.cfg", "".join(im.name + "\n" for im in ws.images))

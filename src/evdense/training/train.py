@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import json
 import math
-import os
 import time
 from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
@@ -31,6 +30,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from evdense.formats.files import write_atomic, write_text_atomic
 from evdense.log import get_logger
 from evdense.recon.checkpoints import save_checkpoint
 from evdense.recon.inference import pick_device
@@ -283,9 +283,7 @@ def _save_state(out_dir: Path, state: dict[str, Any], keep: int) -> Path:
     d = _checkpoint_dir(out_dir)
     d.mkdir(parents=True, exist_ok=True)
     path = d / f"step_{state['step']:07d}.pt"
-    tmp = path.with_name(path.name + ".partial")
-    torch.save(state, tmp)
-    os.replace(tmp, path)
+    write_atomic(path, lambda tmp: torch.save(state, tmp))
     for old in sorted(d.glob("step_*.pt"))[:-keep]:
         old.unlink()
     return path
@@ -493,9 +491,7 @@ def update_provenance(weights_path: str | Path, extra: dict[str, Any]) -> None:
     meta_path = Path(weights_path).with_suffix(".json")
     meta = json.loads(meta_path.read_text())
     meta.setdefault("provenance", {}).update(extra)
-    tmp = meta_path.with_name(meta_path.name + ".partial")
-    tmp.write_text(json.dumps(meta, indent=2, default=str) + "\n")
-    os.replace(tmp, meta_path)
+    write_text_atomic(meta_path, json.dumps(meta, indent=2, default=str) + "\n")
 
 
 def run_training(
