@@ -1,7 +1,7 @@
 """Reconstruction quality on held-out simulated sequences: our weights vs published ones vs baselines.
 
 Usage: PYTHONPATH=src .venv/bin/python benchmarks/bench_recon_quality.py
-           [--data results/training/heldout_s0.h5] [--ours resources/weights/evfirenet.pt]
+           [--data results/training/heldout_s0.h5] [--ours resources/weights/evfirenet.pt [more.pt ...]]
            [--anchors /work/shared/anchors] [--threads 2]
 
 The held-out split (24 sequences of 32 windows of 0.3 events/pixel at 128 x 96: checkerboards,
@@ -36,7 +36,10 @@ ROOT = Path(__file__).resolve().parents[1]
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--data", default=str(ROOT / "results/training/heldout_s0.h5"))
-    ap.add_argument("--ours", default=str(ROOT / "resources/weights/evfirenet.pt"))
+    ap.add_argument(
+        "--ours", nargs="+", default=[str(ROOT / "resources/weights/evfirenet.pt")],
+        help="our checkpoints (several: one row each, named by their path)",
+    )  # fmt: skip
     ap.add_argument("--anchors", default=str(ROOT.parent / "shared" / "anchors"))
     ap.add_argument("--threads", type=int, default=2)
     args = ap.parse_args()
@@ -51,8 +54,14 @@ def main() -> None:
         print(f"simulated the held-out split in {time.perf_counter() - t0:.0f} s -> {data}")
 
     methods: dict[str, str | None] = {}
-    if Path(args.ours).is_file():
-        methods["ours (evfirenet)"] = args.ours
+    ours_names = []
+    for path in args.ours:
+        if not Path(path).is_file():
+            print(f"skipping {path}: not found")
+            continue
+        name = "ours (evfirenet)" if len(args.ours) == 1 else f"ours ({path})"
+        methods[name] = path
+        ours_names.append(name)
     weights = Path(args.anchors) / "weights"
     for name, file in (("FireNet (published)", "firenet_1000.pth.tar"),
                        ("FireNet+ (published)", "firenet_plus.pth")):  # fmt: skip
@@ -68,12 +77,11 @@ def main() -> None:
     print(f"\nHeld-out quality ({data.name}; {time.perf_counter() - t0:.0f} s)\n")
     print(format_table(rows))
     ssim = {r["method"]: r["ssim"] for r in rows}
-    ours = ssim.get("ours (evfirenet)")
-    if ours is not None:
+    for mine in ours_names:
         for name in ("FireNet (published)", "FireNet+ (published)"):
             if name in ssim:
-                verdict = ">=" if ours >= ssim[name] else "<"
-                print(f"ours SSIM {ours:.4f} {verdict} {name} {ssim[name]:.4f}")
+                verdict = ">=" if ssim[mine] >= ssim[name] else "<"
+                print(f"{mine} SSIM {ssim[mine]:.4f} {verdict} {name} {ssim[name]:.4f}")
 
 
 if __name__ == "__main__":
