@@ -46,7 +46,9 @@ def main() -> None:
     clips += [
         read_rotation_clip(d) for d in sorted((data / "ecd_rotation").iterdir()) if d.is_dir()
     ]
-    methods = {Path(p).stem if len(args.ours) > 1 else "ours": p for p in args.ours}
+    # one row per checkpoint, named by its folder and file when there are several
+    methods = {f"{Path(p).parent.name}/{Path(p).stem}" if len(args.ours) > 1 else "ours": p
+               for p in args.ours}  # fmt: skip
     methods["FireNet"] = str(Path(args.anchors) / "weights/firenet_1000.pth.tar")
     methods["FireNet+"] = str(Path(args.anchors) / "weights/firenet_plus.pth")
     nets = {k: load_checkpoint(v).net for k, v in methods.items()}

@@ -109,7 +109,9 @@ def main() -> None:
         print(f"simulated {args.windows} windows in {time.perf_counter() - t0:.0f} s -> {data}")
     with h5py.File(data, "r") as f:
         vox, logr = f["voxels"][()].astype(np.float32), f["log_radiance"][()]
-    methods = {Path(p).stem if len(args.ours) > 1 else "ours": p for p in args.ours}
+    # one row per checkpoint, named by its folder and file when there are several
+    methods = {f"{Path(p).parent.name}/{Path(p).stem}" if len(args.ours) > 1 else "ours": p
+               for p in args.ours}  # fmt: skip
     for name, file in (("FireNet", "firenet_1000.pth.tar"), ("FireNet+", "firenet_plus.pth")):
         if (Path(args.anchors) / "weights" / file).is_file():
             methods[name] = str(Path(args.anchors) / "weights" / file)
