@@ -71,7 +71,7 @@ def main() -> None:
         m = json.loads(m_path.read_text()) if m_path.is_file() else {}
         traj, img = m.get("trajectory", {}), m.get("images", {})
         mvs = res / "mvs" / src / "stats.json"
-        points = json.loads(mvs.read_text()).get("num_points") if mvs.is_file() else None
+        points = json.loads(mvs.read_text()).get("fused_points") if mvs.is_file() else None
         obj = next((res / "mesh" / src).glob("*/textured/mesh.obj"), None)
         faces = sum(1 for ln in open(obj) if ln.startswith("f ")) if obj else None
         if stats.get("failed"):
