@@ -243,9 +243,6 @@ def set_options(obj: Any, values: dict[str, Any], where: str) -> Any:
     return obj
 
 
-# ---- frames folders: evdense.formats.frames ---------------------------------------------------
-
-
 def _load_small_grey(path: Path, factor: int = 4) -> np.ndarray:
     import imageio.v3 as iio
 

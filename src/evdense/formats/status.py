@@ -28,9 +28,8 @@ EMPTY_CLOUD_PLY = (
 )
 """A valid point cloud with no points."""
 
-EMPTY_MESH_PLY = (
-    "ply\nformat ascii 1.0\nelement vertex 0\nproperty float x\nproperty float y\n"
-    "property float z\nelement face 0\nproperty list uchar int vertex_indices\nend_header\n"
+EMPTY_MESH_PLY = EMPTY_CLOUD_PLY.replace(
+    "end_header\n", "element face 0\nproperty list uchar int vertex_indices\nend_header\n"
 )
 """A valid triangle mesh with no triangles."""
 
