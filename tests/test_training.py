@@ -9,7 +9,7 @@ import pytest
 import torch
 from skimage.metrics import structural_similarity
 
-from evdense.recon.checkpoints import load_checkpoint
+from evdense.recon.checkpoints import load_checkpoint, save_checkpoint
 from evdense.recon.inference import NetworkReconstructor
 from evdense.recon.postprocess import standardize_nonzero
 from evdense.training.data import TrainDataConfig, generate_dataset, load_split, simulate_sequence
@@ -196,6 +196,23 @@ def test_resume_gives_the_uninterrupted_state(tiny_set, tmp_path):
     sa, sb = a["optimizer"]["state"], b["optimizer"]["state"]
     assert all(torch.equal(sa[i]["exp_avg"], sb[i]["exp_avg"]) for i in sa)
     assert a["rng"] == b["rng"]
+
+
+def test_init_weights_starts_from_them_and_refuses_another_shape(tmp_path):
+    donor = build_model(TrainConfig.from_dict({**TINY, "seed": 7}))
+    save_checkpoint(donor, tmp_path / "donor.pt", {"note": "test"})
+    conf = TrainConfig.from_dict({**TINY, "init_weights": str(tmp_path / "donor.pt")})
+    tuned, fresh = build_model(conf), build_model(TrainConfig.from_dict(TINY))
+    for k, v in donor.state_dict().items():
+        assert torch.equal(tuned.state_dict()[k], v), k
+    assert any(not torch.equal(fresh.state_dict()[k], v) for k, v in donor.state_dict().items())
+    # a resumed run takes its weights from the checkpoint, not from init_weights
+    resumed = build_model(conf, init=False).state_dict()
+    assert all(torch.equal(resumed[k], v) for k, v in fresh.state_dict().items())
+    wide = build_model(TrainConfig.from_dict({**TINY, "base_channels": 8}))
+    save_checkpoint(wide, tmp_path / "narrow.pt")
+    with pytest.raises(ValueError, match="narrow.pt"):
+        build_model(TrainConfig.from_dict({**TINY, "init_weights": str(tmp_path / "narrow.pt")}))
 
 
 @pytest.mark.skipif(not torch.cuda.is_available(), reason="no CUDA device")

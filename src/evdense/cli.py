@@ -134,6 +134,7 @@ def _add_train(sub: argparse.ArgumentParser) -> None:
     sub.add_argument("--max-steps", type=int, help="override train.max_steps")
     sub.add_argument("--time-budget-min", type=float, help="override train.time_budget_min")
     sub.add_argument("--device", help="override train.device (cpu, cuda, auto)")
+    sub.add_argument("--init-weights", help="override train.init_weights (fine-tune from these)")
     sub.add_argument("--workers", type=int, default=1, help="processes simulating the data")
     sub.add_argument("--no-resume", action="store_true", help="start over, ignoring checkpoints")
     sub.add_argument("--no-evaluate", action="store_true", help="skip the held-out evaluation")
@@ -149,7 +150,7 @@ def _run_train(args: argparse.Namespace) -> int:
     if args.config:
         with open(args.config) as f:
             section = dict((yaml.safe_load(f) or {}).get("train") or {})
-    for key in ("seed", "max_steps", "time_budget_min", "device"):
+    for key in ("seed", "max_steps", "time_budget_min", "device", "init_weights"):
         if getattr(args, key) is not None:
             section[key] = getattr(args, key)
     res = run_training(

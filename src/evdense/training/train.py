@@ -32,7 +32,7 @@ import torch
 
 from evdense.formats.files import write_atomic, write_text_atomic
 from evdense.log import get_logger
-from evdense.recon.checkpoints import save_checkpoint
+from evdense.recon.checkpoints import load_checkpoint, save_checkpoint
 from evdense.recon.inference import pick_device
 from evdense.recon.networks import FireNet, detach_states
 from evdense.training.data import TrainDataConfig, load_split, read_config
@@ -109,6 +109,9 @@ class TrainConfig:
     resumes on either (checkpoints are loaded to the CPU first)."""
     time_budget_min: float = 0.0
     """Stop (after a checkpoint and a validation) when training has run this many minutes (0 = no limit)."""
+    init_weights: str = ""
+    """Start from these weights (ours or a published FireNet of the same shape) instead of a random
+    initialisation: a fine-tune, with its own warm-up and cosine schedule ("" = random start)."""
     data: TrainDataConfig = field(default_factory=TrainDataConfig)
     """Recipe of the simulated data (``train.data``)."""
 
@@ -326,14 +329,27 @@ def describe_device(dev: torch.device) -> str:
     return f"{dev} ({torch.get_num_threads()} threads)"
 
 
-def build_model(conf: TrainConfig) -> FireNet:
-    """A FireNet with the run's hyper-parameters, initialised from ``conf.seed``."""
+def build_model(conf: TrainConfig, init: bool = True) -> FireNet:
+    """A FireNet with the run's hyper-parameters, initialised from ``conf.seed``, or (``init``)
+    with the weights of ``conf.init_weights`` when set (they must have the run's architecture)."""
     torch.manual_seed(conf.seed)
-    return FireNet(
+    net = FireNet(
         num_bins=conf.data.bins,
         base_channels=conf.base_channels,
         num_residual_blocks=conf.num_residual_blocks,
     )
+    if init and conf.init_weights:
+        loaded = load_checkpoint(conf.init_weights)
+        try:
+            net.load_state_dict(loaded.net.state_dict(), strict=True)
+        except RuntimeError as e:
+            raise ValueError(
+                f"train.init_weights {conf.init_weights}: {loaded.arch} {loaded.hparams} does not "
+                f"fit the run's FireNet (base_channels {conf.base_channels}, "
+                f"num_residual_blocks {conf.num_residual_blocks}, bins {conf.data.bins}): {e}"
+            ) from None
+        log.info("initial weights from %s", conf.init_weights)
+    return net
 
 
 def train_model(
@@ -365,15 +381,15 @@ def train_model(
     v_vox = normalize_windows(v_vox, conf.voxel_clip).to(dev)
     v_tgt = torch.from_numpy(v_tgt).to(dev)
 
+    ckpt = latest_checkpoint(out_dir) if resume else None
     cl = torch.channels_last  # faster convolutions on CPU (oneDNN) and on CUDA (cuDNN NHWC)
-    net = build_model(conf).to(device=dev, memory_format=cl)
+    net = build_model(conf, init=ckpt is None).to(device=dev, memory_format=cl)
     log.info("training on %s", describe_device(dev))
     net.train()
     opt = torch.optim.Adam(net.parameters(), lr=conf.lr)
     rng = np.random.default_rng(conf.seed)
     step, best_loss, best_step, best_val, spent = 0, math.inf, -1, {}, 0.0
     history = out_dir / "history.jsonl"
-    ckpt = latest_checkpoint(out_dir) if resume else None
     if ckpt is not None:
         state = _load_state(ckpt)
         net.load_state_dict(state["model"])
