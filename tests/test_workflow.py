@@ -59,6 +59,17 @@ def test_tiny_config_runs_every_rule_down_to_the_report(tmp_path):
     assert metrics["geometry"]["dense"]["num_points"] > 0
     assert (res / "summary" / "summary.md").read_text().startswith("# evdense run summary")
     assert list((res / "summary" / "figures").glob("*.png"))
+    # each dataset's pictures: the paper's figures, the error-coloured views of every source
+    figs = {p.name for p in (res / "tiny" / "figures").glob("*.png")}
+    assert {"events_spacetime.png", "event_frames.png", "frames.png", "reconstructions.png",
+            "prf_vs_threshold.png", "trajectory.png"} <= figs  # fmt: skip
+    assert {f"errors_{s}.png" for s in table["source"]} <= figs
+    assert all((res / "tiny" / "figures" / f).with_suffix(".pdf").is_file() for f in figs)
+    curve = metrics["geometry"]["refined"]["curve"]
+    assert len(curve["fscore"]) == len(curve["relative_thresholds"]) > 10
+    page = (res / "tiny" / "meshes.html").read_text()
+    registered = int((~table["failed"].astype(bool)).sum())  # a source whose SfM failed has no mesh
+    assert page.count('"frame":"gt"') == registered >= 2  # the textured meshes, in the GT frame
 
     report = snakemake(
         "--report", "report.html", "--configfile", str(REPO / "config/test.yaml"), cwd=tmp_path

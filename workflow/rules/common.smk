@@ -128,6 +128,8 @@ def dataset_targets(name):
     for src in image_sources(name):
         targets += [f"results/{name}/sfm/{src}", f"results/{name}/mvs/{src}/fused.ply"]
         targets += mesh_products(name, src)
+    if config["evaluate"]["figures"]:
+        targets += [f"results/{name}/figures", f"results/{name}/meshes.html"]
     return targets
 
 

@@ -23,6 +23,70 @@ rule gather_metrics:
         "../scripts/gather_metrics.py"
 
 
+def dataset_figure_sources(dataset):
+    """Per image source, the products its pictures are drawn from (SourceFiles fields)."""
+    evaluated = dataset in evaluated_datasets()
+    out = {}
+    for src in image_sources(dataset):
+        mesh, refined, textured = mesh_products(dataset, src)
+        out[src] = {
+            "frames": source_frames_dir(dataset, src),
+            "sfm": f"results/{dataset}/sfm/{src}",
+            "dense": f"results/{dataset}/mvs/{src}/fused.ply",
+            "refined": refined,
+            "textured": textured,
+            "metrics": (
+                f"results/{dataset}/eval/{src}/metrics.json" if evaluated else None
+            ),
+        }
+    return out
+
+
+def dataset_figure_inputs(wildcards):
+    """Every file the dataset's pictures read: declared, so a changed product redraws them."""
+    d = wildcards.dataset
+    files = [
+        source_images(d, src) for src in image_sources(d)
+    ]  # rule outputs holding the frames
+    for src, f in dataset_figure_sources(d).items():
+        files += [f["sfm"], f["dense"], f["refined"], f["textured"]]
+        files += [f["metrics"]] if f["metrics"] else []
+    return {
+        "events": f"results/{d}/events/events.h5",
+        "gt": f"results/{d}/gt",
+        "products": files,
+    }
+
+
+rule plot_dataset:
+    input:
+        unpack(dataset_figure_inputs),
+    output:
+        figures=report(
+            directory("results/{dataset}/figures"),
+            patterns=["{name}.png"],
+            caption="../report/dataset_figures.rst",
+            category="Reconstructions",
+            subcategory="{dataset}",
+        ),
+        page=report(
+            "results/{dataset}/meshes.html",
+            caption="../report/meshes_page.rst",
+            category="Reconstructions",
+            subcategory="{dataset}",
+        ),
+    log:
+        "results/{dataset}/logs/plot_dataset.log",
+    benchmark:
+        "results/{dataset}/benchmarks/plot_dataset.tsv"
+    threads: 1
+    params:
+        sources=lambda w: dataset_figure_sources(w.dataset),
+        conf=lambda w: config["evaluate"],
+    script:
+        "../scripts/plot_dataset.py"
+
+
 rule plot_figures:
     input:
         csv=f"{SUMMARY}/metrics.csv",

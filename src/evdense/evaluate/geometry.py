@@ -47,6 +47,9 @@ class GeometryMetrics:
     precision: list[float] = field(default_factory=list)
     recall: list[float] = field(default_factory=list)
     fscore: list[float] = field(default_factory=list)
+    curve: dict[str, list[float]] | None = None
+    """Precision, recall and F-score at many thresholds (``relative_thresholds`` beside them), for
+    the threshold plot; None unless asked for."""
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -148,6 +151,54 @@ def bbox_diagonal(mesh: o3d.geometry.TriangleMesh) -> float:
     return float(np.linalg.norm(v.max(0) - v.min(0)))
 
 
+def geometry_distances(
+    recon: np.ndarray | o3d.geometry.TriangleMesh,
+    gt: o3d.geometry.TriangleMesh,
+    num_samples: int = 200_000,
+    crop_margin: float = 0.0,
+    seed: int = 0,
+    gt_samples: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The two distance sets every score is made of: accuracy (each reconstructed point, or
+    sample of a reconstructed mesh, to the GT surface) and completeness (each GT sample to the
+    reconstruction); see :func:`evaluate_geometry` for the arguments. Empty accuracy when the
+    reconstruction is empty (completeness is then infinite)."""
+    diag = bbox_diagonal(gt)
+    if isinstance(recon, o3d.geometry.TriangleMesh):
+        pts = sample_surface(recon, num_samples, seed) if len(recon.triangles) else np.zeros((0, 3))
+    else:
+        pts = np.asarray(recon, dtype=np.float64).reshape(-1, 3)
+    if crop_margin > 0 and len(pts):
+        v = np.asarray(gt.vertices)
+        lo, hi = v.min(0) - crop_margin * diag, v.max(0) + crop_margin * diag
+        pts = pts[np.all((pts >= lo) & (pts <= hi), axis=1)]
+    if gt_samples is None:
+        gt_samples = sample_surface(gt, num_samples, seed + 1)
+    elif len(gt_samples) == 0:
+        raise ValueError("gt_samples is empty: no observed GT surface to measure completeness on")
+    if len(pts) == 0:
+        return np.zeros(0), np.full(len(gt_samples), np.inf)
+    acc = surface_distance(gt, pts)
+    if isinstance(recon, o3d.geometry.TriangleMesh):
+        comp = surface_distance(recon, gt_samples)
+    else:
+        comp, _ = cKDTree(pts).query(gt_samples, workers=-1)
+    return acc, comp
+
+
+def scores_at(
+    acc: np.ndarray, comp: np.ndarray, thresholds: list[float] | np.ndarray
+) -> tuple[list[float], list[float], list[float]]:
+    """Precision, recall and F-score at each absolute threshold (0 when nothing was reconstructed)."""
+    if len(acc) == 0:
+        zeros = [0.0] * len(thresholds)
+        return zeros, list(zeros), list(zeros)
+    prec = [float(np.mean(acc < t)) for t in thresholds]
+    rec = [float(np.mean(comp < t)) for t in thresholds]
+    f = [2 * p * r / (p + r) if p + r > 0 else 0.0 for p, r in zip(prec, rec, strict=True)]
+    return prec, rec, f
+
+
 def evaluate_geometry(
     recon: np.ndarray | o3d.geometry.TriangleMesh,
     gt_mesh: o3d.geometry.TriangleMesh | str | Path,
@@ -156,6 +207,7 @@ def evaluate_geometry(
     crop_margin: float = 0.0,
     seed: int = 0,
     gt_samples: np.ndarray | None = None,
+    curve_thresholds: list[float] | None = None,
 ) -> GeometryMetrics:
     """Compare a reconstruction with the GT mesh.
 
@@ -168,47 +220,30 @@ def evaluate_geometry(
             the diagonal are dropped before scoring (0 keeps everything).
         gt_samples: the GT points completeness is measured on ``(M, 3)`` (for example
             :func:`observed_surface_samples`); default ``num_samples`` samples of the whole mesh.
+        curve_thresholds: relative thresholds of an extra precision/recall/F curve
+            (:attr:`GeometryMetrics.curve`; None: no curve).
     """
     gt = _as_legacy_mesh(gt_mesh)
     diag = bbox_diagonal(gt)
-    if isinstance(recon, o3d.geometry.TriangleMesh):
-        pts = sample_surface(recon, num_samples, seed) if len(recon.triangles) else np.zeros((0, 3))
-    else:
-        pts = np.asarray(recon, dtype=np.float64).reshape(-1, 3)
-    if crop_margin > 0 and len(pts):
-        v = np.asarray(gt.vertices)
-        lo, hi = v.min(0) - crop_margin * diag, v.max(0) + crop_margin * diag
-        pts = pts[np.all((pts >= lo) & (pts <= hi), axis=1)]
     taus = [r * diag for r in relative_thresholds]
-    if gt_samples is None:
-        gt_samples = sample_surface(gt, num_samples, seed + 1)
-    elif len(gt_samples) == 0:
-        raise ValueError("gt_samples is empty: no observed GT surface to measure completeness on")
-    if len(pts) == 0:
+    acc, comp = geometry_distances(recon, gt, num_samples, crop_margin, seed, gt_samples)
+    prec, rec, f = scores_at(acc, comp, taus)
+    curve = None
+    if curve_thresholds is not None:
+        cp, cr, cf = scores_at(acc, comp, [r * diag for r in curve_thresholds])
+        curve = {
+            "relative_thresholds": [float(r) for r in curve_thresholds],
+            "precision": cp,
+            "recall": cr,
+            "fscore": cf,
+        }
+    if len(acc) == 0:
         inf = float("inf")
         return GeometryMetrics(
-            0,
-            inf,
-            inf,
-            inf,
-            inf,
-            inf,
-            taus,
-            list(relative_thresholds),
-            [0.0] * len(taus),
-            [0.0] * len(taus),
-            [0.0] * len(taus),
+            0, inf, inf, inf, inf, inf, taus, list(relative_thresholds), prec, rec, f, curve
         )
-    acc = surface_distance(gt, pts)
-    if isinstance(recon, o3d.geometry.TriangleMesh):
-        comp = surface_distance(recon, gt_samples)
-    else:
-        comp, _ = cKDTree(pts).query(gt_samples, workers=-1)
-    prec = [float(np.mean(acc < t)) for t in taus]
-    rec = [float(np.mean(comp < t)) for t in taus]
-    f = [2 * p * r / (p + r) if p + r > 0 else 0.0 for p, r in zip(prec, rec, strict=True)]
     return GeometryMetrics(
-        num_points=len(pts),
+        num_points=len(acc),
         accuracy_mean=float(acc.mean()),
         accuracy_median=float(np.median(acc)),
         completeness_mean=float(comp.mean()),
@@ -219,4 +254,5 @@ def evaluate_geometry(
         precision=prec,
         recall=rec,
         fscore=f,
+        curve=curve,
     )

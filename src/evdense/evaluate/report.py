@@ -8,7 +8,6 @@ import numpy as np
 import pandas as pd
 
 from evdense.evaluate import figures
-from evdense.formats.frames import is_frames_dir
 from evdense.log import get_logger
 
 log = get_logger("report")
@@ -27,65 +26,61 @@ def best_fscore_column(df: pd.DataFrame) -> str:
     return "sparse_fscore"
 
 
-def make_figures(df: pd.DataFrame, results_dir: str | Path, out_dir: str | Path) -> list[Path]:
-    """All figures of a run into ``out_dir`` (PNG + PDF): metric curves, frames, event frames."""
-    results_dir, out_dir = Path(results_dir), Path(out_dir)
+SWEEP_METRICS = (
+    "refined_fscore",
+    "dense_fscore",
+    "sparse_fscore",
+    "refined_chamfer",
+    "ate_rmse_relative",
+    "rpe_rot_rmse_deg",
+    "sfm_registered_fraction",
+    "image_ssim",
+    "textured_psnr",
+)
+"""The metrics drawn against each swept quantity (those the table has)."""
+
+SWEEP_AXES = ("speed", "dynamic_range", "window_events", "bins")
+"""What a sweep varies: motion speed, dynamic range, events per window, voxel time bins."""
+
+
+def with_sweep_columns(df: pd.DataFrame) -> pd.DataFrame:
+    """The table plus ``window_events`` (the N of an ``n<N>`` window spec) for the window sweep."""
+    d = df.copy()
+    if "window" in d.columns:
+        d["window_events"] = pd.to_numeric(
+            d["window"].astype(str).str.extract(r"^n(\d+)$")[0], errors="coerce"
+        )
+    return d
+
+
+def make_figures(df: pd.DataFrame, out_dir: str | Path) -> list[Path]:
+    """The run's figures from its metrics table into ``out_dir`` (PNG + PDF): every metric against
+    every quantity the run sweeps (speed, dynamic range, window size, bins), one line per image
+    source with the oracle dashed, and the claim figure when the run checks the paper's claim.
+    Pictures of each dataset come from its own rule (:mod:`evdense.evaluate.dataset_figures`)."""
+    out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     made: list[Path] = []
     if df.empty:
         return made
-    fcol = best_fscore_column(df)
-    for metric in (fcol, "ate_rmse_relative", "image_ssim", "sfm_registered_fraction"):
-        if metric in df.columns and "speed" in df.columns:
-            if df["speed"].nunique() > 1:
+    d = with_sweep_columns(df)
+    for x in SWEEP_AXES:
+        if x not in d.columns or d[x].nunique() < 2:
+            continue
+        fixed = {k: 1.0 for k in ("speed", "dynamic_range") if k != x and k in d.columns}
+        for metric in SWEEP_METRICS:
+            if metric in d.columns and d[metric].notna().any():
                 made += figures.plot_metric_vs(
-                    df,
-                    "speed",
-                    metric,
-                    out_dir / f"{metric}_vs_speed.png",
-                    fixed={"dynamic_range": 1.0},
+                    d, x, metric, out_dir / f"{metric}_vs_{x}.png", hue="source", fixed=fixed
                 )
-            if df["dynamic_range"].nunique() > 1:
-                made += figures.plot_metric_vs(
-                    df,
-                    "dynamic_range",
-                    metric,
-                    out_dir / f"{metric}_vs_dynamic_range.png",
-                    fixed={"speed": 1.0},
-                )
-    synthetic = df.dropna(subset=["speed"]) if "speed" in df.columns else df.iloc[0:0]
-    picks = {}
-    if not synthetic.empty:
-        picks["fastest"] = synthetic.sort_values(["speed", "dynamic_range"]).iloc[-1]["dataset"]
-        picks["highest_dynamic_range"] = synthetic.sort_values(["dynamic_range", "speed"]).iloc[-1][
-            "dataset"
-        ]
-    for label, dataset in picks.items():
-        rows = df[df["dataset"] == dataset]
-        sources = {}
-        for src in sorted(rows["source"], key=lambda s: (s in ("conventional", "gt"), s)):
-            folder = _frames_dir(results_dir, dataset, src)
-            if is_frames_dir(folder):
-                sources[src] = folder
-        if len(sources) >= 1:
-            made += figures.frames_comparison(sources, out_dir / f"frames_{label}_{dataset}.png")
-    events = {f"{k}: {v}": results_dir / v / "events" / "events.h5" for k, v in picks.items()}
-    events = {k: v for k, v in events.items() if v.exists()}
-    if events:
-        made += figures.event_frames_figure(events, out_dir / "event_frames.png")
+    swept = any(k in d.columns and d[k].nunique() > 1 for k in ("speed", "dynamic_range"))
+    claims = claim_table(df) if swept else pd.DataFrame()
+    if not claims.empty:
+        made += figures.claim_figure(
+            claims, CLAIM_MARGIN, CLAIM_ORACLE_FRACTION, out_dir / "claim.png"
+        )
     log.info("%d figure files in %s", len(made), out_dir)
     return made
-
-
-def _frames_dir(results_dir: Path, dataset: str, source: str) -> Path:
-    if source in ("gt", "oracle", "conventional"):
-        return (
-            results_dir
-            / dataset
-            / ("gt" if source != "conventional" else "conventional")
-            / "frames"
-        )
-    return results_dir / dataset / "frames" / source
 
 
 def claim_table(df: pd.DataFrame) -> pd.DataFrame:

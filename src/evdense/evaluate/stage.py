@@ -44,6 +44,11 @@ class EvalConfig:
     """Distance thresholds as fractions of the GT bounding-box diagonal."""
     default_threshold: float = 0.01
     """The threshold (one of the above) reported as *the* F-score in tables and plots."""
+    curve_thresholds: list[float] = field(
+        default_factory=lambda: [round(float(r), 6) for r in np.geomspace(0.001, 0.05, 23)]
+    )
+    """Thresholds (fractions of the GT diagonal) of the precision/recall/F curves stored beside
+    the scores (``geometry.<product>.curve``) and drawn in ``prf_vs_threshold``."""
     num_samples: int = 200_000
     """GT surface samples for completeness (and samples of each reconstructed mesh)."""
     completeness_reference: str = "observed"
@@ -69,6 +74,9 @@ class EvalConfig:
     heldout_views: int = 10
     """Renders of the textured mesh from this many held-out GT cameras (midway between GT frame
     times, which no conventional or GT frame uses) are compared with GT images."""
+    figures: bool = True
+    """Draw each dataset's pictures (``results/{dataset}/figures/``, the seed paper's figures and
+    the error-coloured views) and its page of textured meshes (``results/{dataset}/meshes.html``)."""
 
     @classmethod
     def from_dict(cls, d: dict[str, Any] | None) -> EvalConfig:
@@ -287,7 +295,12 @@ def evaluate_source(
         result["failed"] = True
         result["error"] = sfm_stats.get("error")
         empty = evaluate_geometry(
-            np.zeros((0, 3)), gt_mesh, conf.relative_thresholds, 1000, gt_samples=gt_samples
+            np.zeros((0, 3)),
+            gt_mesh,
+            conf.relative_thresholds,
+            1000,
+            gt_samples=gt_samples,
+            curve_thresholds=conf.curve_thresholds,
         ).to_dict()
         result["geometry"] = {name: empty for name in ["sparse", "dense", *(meshes or {})]}
         if frames_dir is not None and reference_frames is None:
@@ -356,6 +369,7 @@ def evaluate_source(
             conf.num_samples,
             conf.crop_margin,
             gt_samples=gt_samples,
+            curve_thresholds=conf.curve_thresholds,
         )
         geometry[name] = m.to_dict()
         log.info(
