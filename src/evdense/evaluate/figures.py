@@ -183,33 +183,22 @@ def events_spacetime_figure(
     events_path: str | Path,
     out_png: str | Path,
     title: str = "",
-    span_events: int = 40_000,
-    max_points: int = 12_000,
+    duration_ms: float = 30.0,
+    max_events: int = 20_000,
 ) -> list[Path]:
-    """Fig. 3 of the seed paper: ``span_events`` events from the middle of the recording as
-    points in (x, t, y), red positive, blue negative (at most ``max_points``, evenly thinned)."""
+    """Fig. 3 of the seed paper: the events of ``duration_ms`` in the middle of the recording in
+    (x, t, y), coloured by polarity (:func:`evdense.events.frames.plot_space_time`)."""
     from evdense.events.container import EventFile
+    from evdense.events.frames import plot_space_time
 
     with EventFile(events_path) as ef:
-        n, H, W = ef.num_events, ef.height, ef.width
-        span = min(n, span_events)
-        ev = ef.read(max(0, n // 2 - span // 2), max(0, n // 2 - span // 2) + span)
-    step = max(1, len(ev) // max_points)
-    t = (ev.t[::step] - (ev.t[0] if len(ev) else 0)) * 1e-3
-    x, y, p = ev.x[::step], ev.y[::step], ev.p[::step]
-    fig = plt.figure(figsize=(6, 4.2))
-    ax = fig.add_subplot(projection="3d")
-    for pol, colour in ((1, "tab:red"), (-1, "tab:blue")):
-        m = p == pol
-        ax.scatter(x[m], t[m], y[m], s=1.2, c=colour, alpha=0.7, linewidths=0, rasterized=True)
-    ax.set_xlim(0, W)
-    ax.set_zlim(H, 0)
-    ax.set_xlabel("x (px)")
-    ax.set_ylabel("t (ms)")
-    ax.set_zlabel("y (px)")
-    ax.view_init(elev=18, azim=-60)
-    ax.set_title(f"{title}: {len(ev):,} events in {t.max() if len(t) else 0:.1f} ms", fontsize=9)
-    return save_figure(fig, out_png)
+        mid = 0.5 * (ef.t_start_us + ef.t_end_us)
+        half = duration_ms * 500.0
+        ev = ef.read(ef.index_at(mid - half), ef.index_at(mid + half))
+        H, W = ef.height, ef.width
+    label = f"{title}: {len(ev):,} events in {duration_ms:g} ms"
+    png = plot_space_time(out_png, ev, H, W, max_events, title=label, pdf=True)
+    return [png, png.with_suffix(".pdf")]
 
 
 def event_frames_over_time(

@@ -71,8 +71,10 @@ def plot_space_time(
     max_events: int = 20000,
     seed: int = 0,
     title: str | None = None,
+    pdf: bool = False,
 ) -> Path:
-    """Space-time plot: a 3D scatter of events (x, t, y) coloured by polarity, as a PNG.
+    """Space-time plot: a 3D scatter of events (x, t, y) coloured by polarity, as a PNG (and with
+    ``pdf`` a PDF beside it, the points rasterised).
 
     ``events`` are drawn at random down to ``max_events`` (uniformly, so the density is kept);
     time is shown in milliseconds from the first event, rows increase downwards as in the image.
@@ -103,6 +105,7 @@ def plot_space_time(
             linewidths=0,
             label=label,
             depthshade=False,
+            rasterized=pdf,
         )
     ax.set_xlabel("x (px)")
     ax.set_ylabel("t (ms)")
@@ -115,5 +118,7 @@ def plot_space_time(
     ax.set_title(title or f"{n} events" + (f" ({len(events)} drawn)" if n > max_events else ""))
     fig.tight_layout()
     fig.savefig(path, dpi=120)
+    if pdf:
+        fig.savefig(path.with_suffix(".pdf"), dpi=150)
     plt.close(fig)
     return path
