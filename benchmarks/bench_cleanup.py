@@ -26,8 +26,9 @@ import open3d as o3d
 from bench_refine import scored
 
 from evdense.evaluate.stage import EvalConfig, gt_reference_samples
+from evdense.formats.cloud import read_cloud
 from evdense.mesh.cleanup import BOUNDARY_MODES, CleanupConfig, clean_mesh
-from evdense.mesh.io import read_point_cloud, read_views
+from evdense.mesh.io import read_views
 from evdense.mesh.visibility import VisibilityConfig, visibility_mesh
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -66,11 +67,11 @@ def main() -> None:
     gt_samples, _ = gt_reference_samples(ds / "gt", gt, eval_conf)
     for src in args.sources:
         metrics = json.loads((ds / "eval" / src / "metrics.json").read_text())
-        pc = read_point_cloud(ds / "mvs" / src / "fused.ply")
+        pc = read_cloud(ds / "mvs" / src / "fused.ply")
         views = read_views(ds / "mvs" / src)
         t0 = time.monotonic()
         raw = visibility_mesh(
-            pc.points, pc.visibility, views.centers, VisibilityConfig(), pc.colors
+            pc.points, pc.visibility, views.centers, VisibilityConfig(), pc.colors_float()
         )
         print(f"\n{args.dataset} / {src}: raw mesh {len(raw.triangles)} faces "
               f"({time.monotonic() - t0:.0f} s); F at 0.25 / 0.5 / 1 / 2 %")  # fmt: skip

@@ -35,10 +35,11 @@ import open3d as o3d
 
 from evdense.camera import davis346
 from evdense.evaluate.geometry import evaluate_geometry
+from evdense.formats.cloud import read_cloud
 from evdense.log import setup_logging
 from evdense.mesh.cleanup import BOUNDARY_MODES, clean_mesh
 from evdense.mesh.geometry import make_scene, project, raycast_view
-from evdense.mesh.io import Views, make_mesh, read_mesh, read_point_cloud, read_views
+from evdense.mesh.io import Views, make_mesh, read_mesh, read_views
 from evdense.mesh.poisson import poisson_mesh
 from evdense.mesh.refine import refine_vertices
 from evdense.mesh.render import render_textured
@@ -234,12 +235,12 @@ def run_workspace(args) -> dict:
     test_idx = list(range(k // 2, len(views), k))
     train = views.subset([i for i in range(len(views)) if i not in test_idx])
     test = views.subset(test_idx)
-    pc = read_point_cloud(ws / "fused.ply")
+    pc = read_cloud(ws / "fused.ply")
     gt = read_mesh(Path(args.gt_dir) / "mesh.ply")
     test_images = [test.image(i) for i in range(len(test))]
     # A .vis file indexes all views; the benchmark re-estimates visibility from the training views.
     return evaluate_all(
-        pc.points, pc.normals, pc.colors, train, test, test_images, None, gt, conf, args
+        pc.points, pc.normals, pc.colors_float(), train, test, test_images, None, gt, conf, args
     )
 
 

@@ -9,6 +9,7 @@ import pytest
 
 from evdense.camera import Camera
 from evdense.config import validate_config
+from evdense.formats.cloud import read_cloud, read_vis_file, write_vis_file
 from evdense.mesh.cleanup import (
     CleanupConfig,
     boundary_vertices,
@@ -18,15 +19,7 @@ from evdense.mesh.cleanup import (
     smooth_taubin,
 )
 from evdense.mesh.geometry import face_adjacency, face_normals
-from evdense.mesh.io import (
-    Views,
-    make_mesh,
-    read_mesh,
-    read_point_cloud,
-    read_vis_file,
-    write_vis_file,
-    write_workspace,
-)
+from evdense.mesh.io import Views, make_mesh, read_mesh, write_workspace
 from evdense.mesh.poisson import PoissonConfig, poisson_mesh
 from evdense.mesh.stage import MeshConfig, mesh_surface
 from evdense.mesh.synthetic import box_mesh, make_views, sample_cloud, smooth_colour, sphere_mesh
@@ -318,7 +311,7 @@ def test_mesh_surface_stage_from_a_workspace(tmp_path, rng):
     write_vis_file(str(cloud) + ".vis", vis)
     back = read_vis_file(str(cloud) + ".vis")
     assert all(np.array_equal(a, b) for a, b in zip(vis, back, strict=True))
-    assert read_point_cloud(cloud).visibility is not None
+    assert read_cloud(cloud).visibility is not None
     out = mesh_surface(cloud, ws, tmp_path / "vis2" / "mesh.ply", "visibility", conf)
     assert np.abs(np.linalg.norm(np.asarray(read_mesh(out).vertices), axis=1) - 1).mean() < 0.01
     out = mesh_surface(cloud, ws, tmp_path / "poisson" / "mesh.ply", "poisson", conf)

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from evdense.camera import Camera
-from evdense.mvs.io import read_colmap_array, read_vis_file, write_colmap_array, write_vis_file
+from evdense.mvs.io import read_colmap_array, write_colmap_array
 from evdense.mvs.synthetic import Plane, plane_scene
 
 W, H = 96, 72
@@ -40,36 +40,6 @@ def test_bad_colmap_arrays_raise_naming_the_file(tmp_path):
     (tmp_path / "t.bin").write_bytes((tmp_path / "t.bin").read_bytes()[:-4])
     with pytest.raises(ValueError, match="t.bin"):
         read_colmap_array(tmp_path / "t.bin")
-
-
-def test_vis_file_round_trip(tmp_path):
-    vis = [np.array([0, 3]), np.array([], np.int64), np.array([7])]
-    write_vis_file(tmp_path / "f.vis", vis)
-    back = read_vis_file(tmp_path / "f.vis")
-    assert [v.tolist() for v in back] == [[0, 3], [], [7]]
-    write_vis_file(tmp_path / "e.vis", [])
-    assert read_vis_file(tmp_path / "e.vis") == []
-
-
-def test_ply_round_trip(tmp_path):
-    from evdense.mvs.fusion import PointCloud, read_ply, write_ply
-
-    rng = np.random.default_rng(1)
-    n = rng.normal(size=(50, 3))
-    cloud = PointCloud(
-        rng.random((50, 3)),
-        n / np.linalg.norm(n, axis=1, keepdims=True),
-        rng.integers(0, 256, (50, 3)).astype(np.uint8),
-        [np.array([i % 3]) for i in range(50)],
-    )
-    write_ply(tmp_path / "c.ply", cloud)
-    back = read_ply(tmp_path / "c.ply")
-    np.testing.assert_allclose(back.points, cloud.points, atol=1e-6)
-    np.testing.assert_allclose(back.normals, cloud.normals, atol=1e-6)
-    np.testing.assert_array_equal(back.colors, cloud.colors)
-    assert [v.tolist() for v in read_vis_file(tmp_path / "c.ply.vis")] == [
-        [i % 3] for i in range(50)
-    ]
 
 
 def _plane_workspace(tmp_path):

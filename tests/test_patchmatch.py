@@ -195,7 +195,7 @@ STAGE_CONF = {
 def test_stage_on_a_tiny_workspace(tmp_path):
     """run_mvs end to end on four views of a plane with a known COLMAP model: fused points on the
     plane, stats written, and a second run reuses every map."""
-    from evdense.mvs.fusion import read_ply
+    from evdense.formats.cloud import read_cloud
     from evdense.mvs.stage import run_mvs
 
     plane, frames, sparse = _tiny_workspace(tmp_path)
@@ -204,7 +204,7 @@ def test_stage_on_a_tiny_workspace(tmp_path):
     assert (out / "fused.ply").is_file() and (out / "fused.ply.vis").is_file()
     assert stats["fused_points"] > 2000
     assert json.loads((out / "stats.json").read_text())["num_views"] == 4
-    X = read_ply(out / "fused.ply").points
+    X = read_cloud(out / "fused.ply").points
     n = plane.normal / np.linalg.norm(plane.normal)
     dist = np.abs((X - plane.point) @ n)
     assert np.median(dist) < 0.01 and np.percentile(dist, 95) < 0.05

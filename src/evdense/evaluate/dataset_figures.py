@@ -149,14 +149,12 @@ def viewpoints(
 
 
 def _read_points(path: Path | None) -> tuple[np.ndarray, np.ndarray | None]:
-    import open3d as o3d
+    from evdense.formats.cloud import read_cloud
 
     if path is None or not path.is_file():
         return np.zeros((0, 3)), None
-    pc = o3d.io.read_point_cloud(str(path))
-    pts = np.asarray(pc.points, dtype=np.float64)
-    col = np.asarray(pc.colors, dtype=np.float64) if pc.has_colors() else None
-    return pts, col
+    pc = read_cloud(path, read_vis=False, allow_empty=True)
+    return pc.points, pc.colors_float()
 
 
 def _transform(points: np.ndarray, M: np.ndarray | None) -> np.ndarray:

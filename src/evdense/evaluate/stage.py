@@ -28,6 +28,7 @@ from evdense.evaluate.geometry import (
 )
 from evdense.evaluate.images import compare_to_gt
 from evdense.evaluate.trajectory import evaluate_trajectory
+from evdense.formats.cloud import read_cloud
 from evdense.formats.files import write_json_atomic
 from evdense.formats.frames import frame_paths_and_times
 from evdense.log import get_logger
@@ -131,8 +132,7 @@ def gt_reference_samples(
 
 
 def _read_cloud(path: Path) -> np.ndarray:
-    pc = o3d.io.read_point_cloud(str(path))
-    return np.asarray(pc.points, dtype=np.float64)
+    return read_cloud(path, read_vis=False, allow_empty=True).points
 
 
 def _read_mesh(path: Path) -> o3d.geometry.TriangleMesh:

@@ -1,12 +1,10 @@
-"""Reading the dense workspace (cameras, poses, images, fused cloud) and writing meshes.
+"""Reading the dense workspace (cameras, poses, images) and writing meshes.
 
 The dense workspace is COLMAP's undistorted layout, ``results/{dataset}/mvs/{source}/``:
 ``images/`` (undistorted frames), ``sparse/`` (pinhole cameras and registered poses, read with
-``pycolmap.Reconstruction``) and ``fused.ply`` (points with normals and colours), optionally with
-``fused.ply.vis`` (COLMAP's visibility file: ``uint64`` point count, then per point a ``uint32``
-count and that many ``uint32`` image indices; an index is the position of the image in
-``Reconstruction.reg_image_ids()``, the order COLMAP's fusion uses and the order of
-:attr:`Views.names` here).
+``pycolmap.Reconstruction``) and ``fused.ply`` with ``fused.ply.vis`` (read with
+:func:`evdense.formats.cloud.read_cloud`; an index in the visibility file is the position of the
+image in ``Reconstruction.reg_image_ids()``, the order of :attr:`Views.names` here).
 """
 
 from __future__ import annotations
@@ -154,73 +152,6 @@ def write_png(path: str | Path, img: np.ndarray) -> None:
     if img.ndim == 3 and img.shape[2] == 1:
         img = img[..., 0]
     iio.imwrite(path, np.clip(np.rint(img * 255.0), 0, 255).astype(np.uint8))
-
-
-@dataclass
-class PointCloud:
-    """A point cloud: positions ``(N, 3)`` metres, unit normals and RGB colours in [0, 1] (or None)."""
-
-    points: np.ndarray
-    normals: np.ndarray | None = None
-    colors: np.ndarray | None = None
-    visibility: list[np.ndarray] | None = None
-    """Per point, the indices of the views that saw it (from ``.vis``), or None."""
-
-
-def read_point_cloud(path: str | Path, read_vis: bool = True) -> PointCloud:
-    """Read a PLY cloud (and ``<path>.vis`` when present and ``read_vis``).
-
-    Raises ``ValueError`` naming the file when it is missing, empty, or its ``.vis`` does not match.
-    """
-    path = Path(path)
-    if not path.is_file():
-        raise ValueError(f"{path}: point cloud file not found")
-    pcd = o3d.io.read_point_cloud(str(path))
-    pts = np.asarray(pcd.points, dtype=np.float64)
-    if len(pts) == 0:
-        raise ValueError(f"{path}: no points in the cloud")
-    if not np.all(np.isfinite(pts)):
-        raise ValueError(f"{path}: the cloud holds non-finite coordinates")
-    normals = np.asarray(pcd.normals, dtype=np.float64) if pcd.has_normals() else None
-    if normals is not None and np.mean(np.linalg.norm(normals, axis=1) < 1e-6) > 0.5:
-        normals = None  # a placeholder (all zeros), not normals
-    colors = np.asarray(pcd.colors, dtype=np.float64) if pcd.has_colors() else None
-    vis = None
-    vis_path = Path(str(path) + ".vis")
-    if read_vis and vis_path.is_file():
-        vis = read_vis_file(vis_path)
-        if len(vis) != len(pts):
-            raise ValueError(
-                f"{vis_path}: {len(vis)} visibility entries for {len(pts)} points in {path}"
-            )
-    return PointCloud(pts, normals, colors, vis)
-
-
-def read_vis_file(path: str | Path) -> list[np.ndarray]:
-    """Read COLMAP's ``fused.ply.vis``: per point, an array of view indices (uint32)."""
-    path = Path(path)
-    data = np.fromfile(path, dtype=np.uint32)
-    if len(data) < 2:
-        raise ValueError(f"{path}: truncated visibility file")
-    n = int(data[0]) | (int(data[1]) << 32)
-    out: list[np.ndarray] = []
-    pos = 2
-    for _ in range(n):
-        if pos >= len(data):
-            raise ValueError(f"{path}: truncated visibility file ({len(out)} of {n} points)")
-        k = int(data[pos])
-        out.append(data[pos + 1 : pos + 1 + k].astype(np.int64))
-        pos += 1 + k
-    return out
-
-
-def write_vis_file(path: str | Path, visibility: list[np.ndarray]) -> None:
-    """Write COLMAP's visibility file (the inverse of :func:`read_vis_file`)."""
-    parts = [np.array([len(visibility) & 0xFFFFFFFF, len(visibility) >> 32], dtype=np.uint32)]
-    for v in visibility:
-        parts.append(np.array([len(v)], dtype=np.uint32))
-        parts.append(np.asarray(v, dtype=np.uint32))
-    np.concatenate(parts).tofile(path)
 
 
 def read_mesh(path: str | Path) -> o3d.geometry.TriangleMesh:

@@ -17,11 +17,12 @@ from typing import Any
 
 import numpy as np
 
+from evdense.formats.cloud import read_cloud
 from evdense.formats.files import write_json_atomic
 from evdense.formats.status import SFM_FAILED, STATS_NAME, is_failed, write_empty_products
 from evdense.log import get_logger
 from evdense.mesh.cleanup import CleanupConfig, clean_mesh
-from evdense.mesh.io import make_mesh, read_mesh, read_point_cloud, read_views, write_mesh
+from evdense.mesh.io import make_mesh, read_mesh, read_views, write_mesh
 from evdense.mesh.poisson import PoissonConfig, poisson_mesh
 from evdense.mesh.refine import RefineConfig, refine_vertices
 from evdense.mesh.texture import TextureConfig, texture_mesh_views, write_textured_mesh
@@ -105,11 +106,11 @@ def mesh_surface(
     if method not in METHODS:
         raise ValueError(f"unknown mesh method {method!r}; expected one of {METHODS}")
     t0 = time.monotonic()
-    pc = read_point_cloud(cloud)
+    pc = read_cloud(cloud)
     views = read_views(workspace)
     log.info("%s: %d points, %d views", cloud, len(pc.points), len(views))
     if method == "poisson":
-        mesh = poisson_mesh(pc.points, pc.normals, conf.poisson, pc.colors, views.centers)
+        mesh = poisson_mesh(pc.points, pc.normals, conf.poisson, pc.colors_float(), views.centers)
     else:
         vis = pc.visibility
         if vis is not None and max((int(v.max()) for v in vis if len(v)), default=-1) >= len(views):
@@ -117,7 +118,7 @@ def mesh_surface(
         if vis is None or sum(len(v) for v in vis) == 0:
             log.info("no visibility file: estimating visibility from the cameras")
             vis = estimate_visibility(pc.points, pc.normals, views, conf.visibility)
-        mesh = visibility_mesh(pc.points, vis, views.centers, conf.visibility, pc.colors)
+        mesh = visibility_mesh(pc.points, vis, views.centers, conf.visibility, pc.colors_float())
     mesh = clean_mesh(mesh, conf.cleanup)
     if len(mesh.triangles) == 0:
         raise ValueError(f"{cloud}: the mesh is empty after clean-up")

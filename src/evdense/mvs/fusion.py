@@ -21,13 +21,12 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from functools import lru_cache
-from pathlib import Path
 
 import numpy as np
 
-from evdense.formats.files import atomic_path
+from evdense.formats.cloud import PointCloud, read_cloud, read_vis_file, vis_path
 from evdense.log import get_logger, progress
-from evdense.mvs.io import read_colmap_array, read_vis_file, write_vis_file
+from evdense.mvs.io import read_colmap_array
 from evdense.mvs.workspace import Workspace
 
 log = get_logger("mvs")
@@ -71,26 +70,6 @@ class FusionConfig:
             )
         if self.voxel_size < 0 or self.voxel_size_px <= 0:
             raise ValueError("mvs.fusion.voxel_size must be >= 0 and voxel_size_px > 0")
-
-
-@dataclass
-class PointCloud:
-    """Points ``(N, 3)``, unit normals ``(N, 3)``, colours ``(N, 3)`` uint8 and, per point, the
-    indices of the views that saw it."""
-
-    points: np.ndarray
-    normals: np.ndarray
-    colors: np.ndarray
-    visibility: list[np.ndarray]
-
-    def __len__(self) -> int:
-        return len(self.points)
-
-    def subset(self, keep: np.ndarray) -> PointCloud:
-        idx = np.nonzero(keep)[0] if keep.dtype == bool else keep
-        return PointCloud(
-            self.points[idx], self.normals[idx], self.colors[idx], [self.visibility[i] for i in idx]
-        )
 
 
 @lru_cache(maxsize=8)
@@ -232,9 +211,9 @@ def fuse_colmap(ws: Workspace, kind: str, cfg: FusionConfig, num_threads: int = 
         options=opts,
         output_type="PLY",
     )
-    cloud = read_ply(out)
-    vis_path = Path(str(out) + ".vis")
-    vis = read_vis_file(vis_path) if vis_path.is_file() else [np.zeros(0, np.int64)] * len(cloud)
+    cloud = read_cloud(out, read_vis=False, allow_empty=True)
+    vp = vis_path(out)
+    vis = read_vis_file(vp) if vp.is_file() else [np.zeros(0, np.int64)] * len(cloud)
     cloud.visibility = [np.asarray(v, np.int64) for v in vis]
     return cloud
 
@@ -248,50 +227,6 @@ def remove_outliers(cloud: PointCloud, neighbors: int, std_ratio: float) -> Poin
     pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(cloud.points))
     _, idx = pcd.remove_statistical_outlier(nb_neighbors=int(neighbors), std_ratio=float(std_ratio))
     return cloud.subset(np.asarray(idx, np.int64))
-
-
-def write_ply(path: str | Path, cloud: PointCloud, write_vis: bool = True) -> None:
-    """Write a binary PLY in COLMAP's fused layout (and ``<path>.vis``), atomically."""
-    path = Path(path)
-    n = len(cloud)
-    rec = np.zeros(
-        n,
-        dtype=[(k, "<f4") for k in ("x", "y", "z", "nx", "ny", "nz")]
-        + [(k, "u1") for k in ("red", "green", "blue")],
-    )
-    for j, k in enumerate("xyz"):
-        rec[k] = cloud.points[:, j]
-        rec["n" + k] = cloud.normals[:, j]
-    for j, k in enumerate(("red", "green", "blue")):
-        rec[k] = cloud.colors[:, j]
-    header = (
-        "ply\nformat binary_little_endian 1.0\n"
-        f"element vertex {n}\n"
-        "property float x\nproperty float y\nproperty float z\n"
-        "property float nx\nproperty float ny\nproperty float nz\n"
-        "property uchar red\nproperty uchar green\nproperty uchar blue\nend_header\n"
-    )
-    with atomic_path(path) as tmp:
-        with open(tmp, "wb") as f:
-            f.write(header.encode("ascii"))
-            f.write(rec.tobytes())
-        if write_vis:  # before the cloud appears, so that a cloud always has its .vis
-            write_vis_file(Path(str(path) + ".vis"), cloud.visibility)
-
-
-def read_ply(path: str | Path) -> PointCloud:
-    """Read a point cloud PLY (positions, normals and colours when present) with open3d."""
-    import open3d as o3d
-
-    pcd = o3d.io.read_point_cloud(str(path))
-    pts = np.asarray(pcd.points, np.float64)
-    nrm = np.asarray(pcd.normals, np.float64) if pcd.has_normals() else np.zeros_like(pts)
-    col = (
-        (np.asarray(pcd.colors) * 255).round().astype(np.uint8)
-        if pcd.has_colors()
-        else np.zeros((len(pts), 3), np.uint8)
-    )
-    return PointCloud(pts, nrm, col, [np.zeros(0, np.int64)] * len(pts))
 
 
 def fuse_workspace(

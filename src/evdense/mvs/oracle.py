@@ -21,10 +21,10 @@ from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation, Slerp
 
 from evdense.camera import Camera, load_camera
+from evdense.formats.cloud import read_cloud
 from evdense.formats.files import write_json_atomic
 from evdense.formats.frames import read_frames
 from evdense.log import get_logger
-from evdense.mvs.fusion import read_ply
 from evdense.mvs.io import read_colmap_array
 from evdense.poses import invert_pose, read_tum
 
@@ -229,7 +229,7 @@ def evaluate_mvs(
 
     mvs_dir, gt_dir = Path(mvs_dir), Path(gt_dir)
     ws = read_workspace(mvs_dir)
-    cloud = read_ply(mvs_dir / "fused.ply")
+    cloud = read_cloud(mvs_dir / "fused.ply", read_vis=False, allow_empty=True)
     dist, diag = _mesh_distance(gt_dir / "mesh.ply", cloud.points)
     tau = threshold * diag
     names = [f.name for f in read_frames(gt_dir / "frames")]

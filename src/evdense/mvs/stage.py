@@ -32,9 +32,10 @@ from typing import Any
 import numpy as np
 import torch
 
+from evdense.formats.cloud import write_cloud
 from evdense.formats.files import write_json_atomic
 from evdense.log import get_logger, progress
-from evdense.mvs.fusion import FusionConfig, fuse_workspace, write_ply
+from evdense.mvs.fusion import FusionConfig, fuse_workspace
 from evdense.mvs.io import write_colmap_array, write_previews
 from evdense.mvs.patchmatch import (
     MAX_COST,
@@ -415,7 +416,7 @@ def _run_mvs(
     compute_depth_maps(ws, cfg, workers=threads or 1)
     t1 = time.perf_counter()
     cloud = fuse_workspace(ws, cfg.fusion, "geometric", num_threads=threads or -1)
-    write_ply(out_dir / "fused.ply", cloud)
+    write_cloud(out_dir / "fused.ply", cloud)
     t_fuse = time.perf_counter() - t1
 
     per_map = []
