@@ -89,32 +89,20 @@ def read_image(path: str | Path) -> np.ndarray:
 
 
 def read_views(workspace: str | Path) -> Views:
-    """Read the registered views of a dense workspace (``sparse/`` and ``images/``).
+    """The registered views of a dense workspace (``sparse/`` and ``images/``), camera-to-world,
+    as :func:`evdense.mvs.workspace.read_workspace` reads them (the one reader of a workspace).
 
     Raises ``ValueError`` naming the folder when ``sparse/`` is missing or holds no registered image.
     """
-    import pycolmap
+    from evdense.mvs.workspace import read_workspace
 
-    workspace = Path(workspace)
-    sparse = workspace / "sparse"
-    if not (sparse / "images.bin").exists() and not (sparse / "images.txt").exists():
-        raise ValueError(
-            f"{sparse}: no COLMAP model (images.bin / images.txt) in the dense workspace"
-        )
-    rec = pycolmap.Reconstruction(str(sparse))
-    cameras, poses, paths, names = [], [], [], []
-    for image_id in rec.reg_image_ids():
-        im = rec.images[image_id]
-        cam = rec.cameras[im.camera_id]  # COLMAP's pixel convention, converted to ours
-        cameras.append(Camera.from_colmap(cam.model_name, cam.width, cam.height, list(cam.params)))
-        T_cw = np.eye(4)
-        T_cw[:3, :] = im.cam_from_world().matrix()
-        poses.append(np.linalg.inv(T_cw))
-        paths.append(workspace / "images" / im.name)
-        names.append(im.name)
-    if not cameras:
-        raise ValueError(f"{sparse}: the model has no registered image")
-    return Views(cameras=cameras, poses=np.stack(poses), image_paths=paths, names=names)
+    ws = read_workspace(workspace, points=False, require_pinhole=False)
+    return Views(
+        cameras=[im.camera for im in ws.images],
+        poses=np.stack([im.T_wc for im in ws.images]),
+        image_paths=[ws.image_path(im.name) for im in ws.images],
+        names=[im.name for im in ws.images],
+    )
 
 
 def write_workspace(workspace: str | Path, views: Views) -> None:

@@ -35,19 +35,38 @@ DEPTH_KINDS = ("photometric", "geometric")
 
 @dataclass
 class WorkspaceImage:
-    """One registered, undistorted image: name, size (pixels), intrinsics ``K`` (3, 3) with pixel
-    centres at integer coordinates, world-to-camera ``R`` (3, 3) and ``t`` (3,)."""
+    """One registered, undistorted image: name, its camera (evdense's pixel convention: pixel
+    centres at integer coordinates), and its pose as COLMAP stores it, world-to-camera ``R``
+    (3, 3) and ``t`` (3,). :attr:`T_wc` is the same pose camera-to-world, for the stages that
+    work in that convention (meshing, texturing)."""
 
     name: str
-    width: int
-    height: int
-    K: np.ndarray
+    camera: Camera
     R: np.ndarray
     t: np.ndarray
 
     @property
+    def width(self) -> int:
+        return self.camera.width
+
+    @property
+    def height(self) -> int:
+        return self.camera.height
+
+    @property
+    def K(self) -> np.ndarray:
+        return self.camera.K
+
+    @property
     def center(self) -> np.ndarray:
         return -self.R.T @ self.t
+
+    @property
+    def T_wc(self) -> np.ndarray:
+        """Camera-to-world ``(4, 4)``: the inverse of ``[R | t]``."""
+        T_cw = np.eye(4)
+        T_cw[:3, :3], T_cw[:3, 3] = self.R, self.t
+        return np.linalg.inv(T_cw)
 
 
 @dataclass
@@ -112,18 +131,22 @@ class Workspace:
         return StereoView(image=grey, K=im.K, R=im.R, t=im.t)
 
 
-def _intrinsics(cam) -> np.ndarray:
-    """evdense ``K`` from an undistorted pycolmap camera (COLMAP's pixel-centre convention
-    converted by :meth:`Camera.from_colmap`)."""
-    if cam.model_name not in ("PINHOLE", "SIMPLE_PINHOLE"):
+def _camera(cam, require_pinhole: bool = True) -> Camera:
+    """evdense camera from a pycolmap camera (COLMAP's pixel-centre convention converted by
+    :meth:`Camera.from_colmap`); an undistorted workspace holds pinhole cameras only."""
+    if require_pinhole and cam.model_name not in ("PINHOLE", "SIMPLE_PINHOLE"):
         raise ValueError(
             f"camera model {cam.model_name} in a dense workspace (expected PINHOLE after undistortion)"
         )
-    return Camera.from_colmap(cam.model_name, cam.width, cam.height, list(cam.params)).K
+    return Camera.from_colmap(cam.model_name, int(cam.width), int(cam.height), list(cam.params))
 
 
-def read_workspace(root: str | Path) -> Workspace:
-    """Read the undistorted model of a dense workspace (``root/sparse``).
+def read_workspace(
+    root: str | Path, points: bool = True, require_pinhole: bool = True
+) -> Workspace:
+    """Read the undistorted model of a dense workspace (``root/sparse``): the one reader of a
+    workspace's cameras and poses (``points=False`` skips the sparse points and their tracks;
+    ``require_pinhole=False`` accepts distorted cameras too).
 
     Raises ``ValueError`` naming the folder when there is no model or no registered image.
     """
@@ -143,12 +166,10 @@ def read_workspace(root: str | Path) -> Workspace:
         im = rec.images[iid]
         cam = rec.cameras[im.camera_id]
         M = np.asarray(im.cam_from_world().matrix(), np.float64)
-        images.append(
-            WorkspaceImage(
-                im.name, int(cam.width), int(cam.height), _intrinsics(cam), M[:, :3], M[:, 3]
-            )
-        )
+        images.append(WorkspaceImage(im.name, _camera(cam, require_pinhole), M[:, :3], M[:, 3]))
         pos[iid] = k
+    if not points:
+        return Workspace(root=root, images=images, points=np.zeros((0, 3)), observed=[])
     pts = []
     obs: list[list[int]] = [[] for _ in ids]
     for j, (_, p) in enumerate(rec.points3D.items()):
