@@ -28,7 +28,7 @@ from bench_refine import scored
 from evdense.evaluate.stage import EvalConfig, gt_reference_samples
 from evdense.formats.cloud import read_cloud
 from evdense.mesh.cleanup import BOUNDARY_MODES, CleanupConfig, clean_mesh
-from evdense.mesh.io import read_views
+from evdense.mesh.views import read_views
 from evdense.mesh.visibility import VisibilityConfig, visibility_mesh
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -35,16 +35,18 @@ import open3d as o3d
 
 from evdense.camera import davis346
 from evdense.evaluate.geometry import evaluate_geometry
+from evdense.evaluate.rendering import render_textured
 from evdense.formats.cloud import read_cloud
 from evdense.log import setup_logging
 from evdense.mesh.cleanup import BOUNDARY_MODES, clean_mesh
 from evdense.mesh.geometry import make_scene, project, raycast_view
-from evdense.mesh.io import Views, make_mesh, read_mesh, read_views
 from evdense.mesh.poisson import poisson_mesh
 from evdense.mesh.refine import refine_vertices
-from evdense.mesh.render import render_textured
 from evdense.mesh.stage import MeshConfig
-from evdense.mesh.synthetic import (
+from evdense.mesh.texture import texture_mesh_views
+from evdense.mesh.views import Views, make_mesh, read_mesh, read_views
+from evdense.mesh.visibility import estimate_visibility, visibility_mesh
+from evdense.testing.mesh_scenes import (
     box_mesh,
     grid_plane,
     make_views,
@@ -52,8 +54,6 @@ from evdense.mesh.synthetic import (
     smooth_colour,
     sphere_mesh,
 )
-from evdense.mesh.texture import texture_mesh_views
-from evdense.mesh.visibility import estimate_visibility, visibility_mesh
 
 RELATIVE = (0.0025, 0.005, 0.01, 0.02)
 
@@ -82,7 +82,7 @@ def visible_samples(
     v, f, views: Views, n: int, min_views: int, rng
 ) -> tuple[np.ndarray, np.ndarray]:
     """Points on the mesh seen (depth test) by at least ``min_views`` views, with their normals."""
-    from evdense.mesh.synthetic import sample_cloud
+    from evdense.testing.mesh_scenes import sample_cloud
 
     pts, nrm = sample_cloud(v, f, 3 * n, seed=int(rng.integers(1 << 30)))
     scene = make_scene(v, f)

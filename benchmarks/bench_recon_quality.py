@@ -12,7 +12,7 @@ sequences as the held-out split of the shipped model's training set) and cached 
 
 Methods: our shipped weights, published FireNet and FireNet+ (from the anchors folder, skipped when
 absent), the high-pass filter and direct integration (given the true contrast thresholds). Metric
-(``evdense.training.evaluate``): per-frame robust min/max (1st/99th percentiles) of prediction and
+(``evdense.training.heldout``): per-frame robust min/max (1st/99th percentiles) of prediction and
 GT alike, then MSE and SSIM, averaged over all frames after the first 5 of each sequence; ``ssim``
 is against log-radiance GT (our GT frames' tone mapping), ``ssim_linear`` against linear radiance.
 """
@@ -27,7 +27,7 @@ import torch
 
 from evdense.log import setup_logging
 from evdense.training.data import generate_dataset
-from evdense.training.evaluate import EvalConfig, evaluate_methods, format_table
+from evdense.training.heldout import EvalConfig, evaluate_methods, format_table
 from evdense.training.train import TrainConfig
 
 ROOT = Path(__file__).resolve().parents[1]

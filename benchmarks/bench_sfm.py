@@ -26,9 +26,9 @@ import tempfile
 import time
 from pathlib import Path
 
-from evdense.align import align_trajectory_to_gt
 from evdense.camera import load_camera
 from evdense.config import validate_config
+from evdense.evaluate.align import align_trajectory_to_gt
 from evdense.log import setup_logging
 from evdense.poses import read_tum
 from evdense.sfm import SfmError, read_sfm_trajectory, run_sfm

@@ -6,17 +6,16 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from evdense.align import (
+from evdense.evaluate.align import (
     align_trajectory_to_gt,
     apply_sim3,
     apply_sim3_to_poses,
     camera_centre_errors,
-    interpolate_poses,
     match_timestamps,
     trajectory_length,
     umeyama_sim3,
 )
-from evdense.poses import look_at
+from evdense.poses import interpolate_poses, look_at
 
 
 def _random_sim3(rng):

@@ -19,16 +19,22 @@ from evdense.mesh.cleanup import (
     smooth_taubin,
 )
 from evdense.mesh.geometry import face_adjacency, face_normals
-from evdense.mesh.io import Views, make_mesh, read_mesh, write_workspace
 from evdense.mesh.poisson import PoissonConfig, poisson_mesh
 from evdense.mesh.stage import MeshConfig, mesh_surface
-from evdense.mesh.synthetic import box_mesh, make_views, sample_cloud, smooth_colour, sphere_mesh
+from evdense.mesh.views import Views, make_mesh, read_mesh, write_workspace
 from evdense.mesh.visibility import (
     estimate_visibility,
     merge_points,
     visibility_mesh,
 )
 from evdense.poses import look_at
+from evdense.testing.mesh_scenes import (
+    box_mesh,
+    make_views,
+    sample_cloud,
+    smooth_colour,
+    sphere_mesh,
+)
 
 CAM = Camera(160, 120, 120.0, 120.0, 79.5, 59.5)
 

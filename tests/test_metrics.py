@@ -16,7 +16,7 @@ from evdense.evaluate.geometry import (
 )
 from evdense.evaluate.images import image_metrics
 from evdense.evaluate.stage import refine_with_icp, truncated_cost
-from evdense.evaluate.trajectory import evaluate_trajectory
+from evdense.evaluate.trajectory_errors import evaluate_trajectory
 from evdense.poses import read_tum
 
 

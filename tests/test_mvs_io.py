@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from evdense.camera import Camera
-from evdense.mvs.io import read_colmap_array, write_colmap_array
-from evdense.mvs.synthetic import Plane, plane_scene
+from evdense.mvs.maps_io import read_colmap_array, write_colmap_array
+from evdense.testing.mvs_scenes import Plane, plane_scene
 
 W, H = 96, 72
 CAM = Camera(W, H, 80.0, 80.0, 47.5, 35.5)

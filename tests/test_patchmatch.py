@@ -16,8 +16,8 @@ from evdense.mvs.patchmatch import (
     estimate_depth_map,
     filter_depth_map,
 )
-from evdense.mvs.synthetic import Plane, plane_scene
 from evdense.poses import look_at
+from evdense.testing.mvs_scenes import Plane, plane_scene
 
 W, H = 96, 72
 CAM = Camera(W, H, 80.0, 80.0, 47.5, 35.5)
@@ -88,7 +88,7 @@ def test_no_overlapping_source_gives_empty_map_with_warning(caplog):
     views, _, _ = plane_scene(plane, CENTERS3[:1], np.array([0, 0, 2.0]), CAM.K, W, H)
     # a source camera behind the reference, looking away from the plane
     T_away = look_at(np.array([0.0, 0.0, -0.5]), np.array([0.0, 0.0, -3.0]), up=(0.0, -1.0, 0.0))
-    from evdense.mvs.synthetic import view_from_pose
+    from evdense.testing.mvs_scenes import view_from_pose
 
     away = view_from_pose(views[0].image, CAM.K, T_away)
     with caplog.at_level(logging.WARNING, logger="evdense"):
@@ -218,7 +218,7 @@ def test_stage_on_a_tiny_workspace(tmp_path):
 @pytest.mark.slow
 def test_stage_worker_processes_compute_the_same_maps(tmp_path):
     """threads=2 on the CPU: two worker processes; seeds are per view, so the maps are identical."""
-    from evdense.mvs.io import read_colmap_array
+    from evdense.mvs.maps_io import read_colmap_array
     from evdense.mvs.stage import run_mvs
 
     _, frames, sparse = _tiny_workspace(tmp_path)

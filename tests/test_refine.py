@@ -11,11 +11,11 @@ import open3d as o3d
 import pytest
 
 from evdense.camera import Camera
-from evdense.mesh.io import make_mesh, read_mesh, write_workspace
 from evdense.mesh.refine import RefineConfig, refine_vertices, select_pairs
 from evdense.mesh.stage import refine_mesh
-from evdense.mesh.synthetic import grid_plane, make_views, smooth_colour
+from evdense.mesh.views import make_mesh, read_mesh, write_workspace
 from evdense.poses import look_at
+from evdense.testing.mesh_scenes import grid_plane, make_views, smooth_colour
 
 CAM = Camera(80, 80, 70.0, 70.0, 39.5, 39.5)
 EYES = [(0, 0, 2.5), (0.7, 0, 2.4), (-0.7, 0, 2.4), (0, 0.7, 2.4), (0, -0.7, 2.4)]

@@ -11,9 +11,9 @@ import pycolmap
 import pytest
 from scipy import ndimage
 
-from evdense.align import align_trajectory_to_gt
 from evdense.camera import Camera
 from evdense.config import load_schema, validate_config
+from evdense.evaluate.align import align_trajectory_to_gt
 from evdense.formats.frames import Frame, read_frames
 from evdense.poses import read_tum
 from evdense.sfm import (

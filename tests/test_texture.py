@@ -11,11 +11,9 @@ import pytest
 from scipy.ndimage import binary_erosion
 
 from evdense.camera import Camera
+from evdense.evaluate.rendering import depth_map, render_mesh, render_points, render_textured
 from evdense.mesh.geometry import face_adjacency, face_normals
-from evdense.mesh.io import make_mesh, read_views, write_workspace
-from evdense.mesh.render import depth_map, render_mesh, render_points, render_textured
 from evdense.mesh.stage import texture_mesh
-from evdense.mesh.synthetic import box_mesh, make_views, orbit_poses, render_colour, sphere_mesh
 from evdense.mesh.texture import (
     TextureConfig,
     read_textured_mesh,
@@ -24,7 +22,15 @@ from evdense.mesh.texture import (
     view_candidates,
     write_textured_mesh,
 )
+from evdense.mesh.views import make_mesh, read_views, write_workspace
 from evdense.poses import look_at
+from evdense.testing.mesh_scenes import (
+    box_mesh,
+    make_views,
+    orbit_poses,
+    render_colour,
+    sphere_mesh,
+)
 
 BASE = np.array(
     [

@@ -13,7 +13,7 @@ from evdense.recon.checkpoints import load_checkpoint, save_checkpoint
 from evdense.recon.inference import NetworkReconstructor
 from evdense.recon.postprocess import standardize_nonzero
 from evdense.training.data import TrainDataConfig, generate_dataset, load_split, simulate_sequence
-from evdense.training.evaluate import EvalConfig, evaluate_methods, frame_scores, read_heldout
+from evdense.training.heldout import EvalConfig, evaluate_methods, frame_scores, read_heldout
 from evdense.training.losses import LossWeights, reconstruction_loss, ssim, temporal_consistency
 from evdense.training.train import (
     TrainConfig,

@@ -9,7 +9,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-from scipy.spatial.transform import Rotation
+from scipy.spatial.transform import Rotation, Slerp
 
 
 def make_pose(R: np.ndarray, t: np.ndarray) -> np.ndarray:
@@ -86,3 +86,27 @@ def read_tum(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
         raise ValueError(f"{path}: no poses")
     a = np.asarray(rows)
     return a[:, 0], tum_to_poses(a[:, 1:])
+
+
+def interpolate_poses(
+    t_query: np.ndarray, t_ref: np.ndarray, T_ref: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Poses at ``t_query`` (seconds) by linear / slerp interpolation of ``T_ref``.
+
+    Returns ``(valid, T)``: a boolean mask ``(M,)`` of queries inside ``[t_ref.min(), t_ref.max()]``
+    and the interpolated poses ``(valid.sum(), 4, 4)`` (clip the queries to the span first for a
+    pose at every query).
+    """
+    t_query = np.asarray(t_query, dtype=np.float64)
+    order = np.argsort(t_ref)
+    tr, Tr = np.asarray(t_ref, dtype=np.float64)[order], np.asarray(T_ref)[order]
+    valid = (t_query >= tr[0]) & (t_query <= tr[-1])
+    tq = t_query[valid]
+    T = np.tile(np.eye(4), (len(tq), 1, 1))
+    if len(tr) == 1:
+        T[:] = Tr[0]
+        return valid, T
+    T[:, :3, :3] = Slerp(tr, Rotation.from_matrix(Tr[:, :3, :3]))(tq).as_matrix()
+    for k in range(3):
+        T[:, k, 3] = np.interp(tq, tr, Tr[:, k, 3])
+    return valid, T

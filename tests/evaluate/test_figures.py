@@ -8,8 +8,8 @@ import numpy as np
 import open3d as o3d
 import pandas as pd
 
-from evdense.align import apply_sim3_to_poses
 from evdense.camera import Camera
+from evdense.evaluate.align import apply_sim3_to_poses
 from evdense.evaluate.dataset_figures import SourceFiles, distance_view, load_source
 from evdense.evaluate.report import make_figures
 from evdense.poses import look_at, write_tum

@@ -244,7 +244,7 @@ def _views_for(L: Loaded, gt: Path | None, camera: Camera) -> dict[str, tuple[Ca
 
 def _reconstructions(dataset, out_dir, sources, loaded, gt, gt_mesh, camera, conf) -> list[Path]:
     """Figs. 8-9: the textured refined mesh and the dense cloud of each source, same viewpoints."""
-    from evdense.mesh.render import render_mesh, render_points, render_textured
+    from evdense.evaluate.rendering import render_mesh, render_points, render_textured
     from evdense.mesh.texture import read_textured_mesh
 
     rows: list[tuple[str, list[tuple[str, np.ndarray | None]]]] = []

@@ -5,7 +5,7 @@ Umeyama Sim(3) on camera centres matched by timestamp, then a scaled ICP of the 
 the GT surface, accepted only when it brings the cloud closer (a truncated squared distance
 falls). The aligned products (sparse cloud, dense cloud, meshes) are cropped to the GT volume and
 scored with :mod:`evdense.evaluate.geometry`; the trajectory with
-:mod:`evdense.evaluate.trajectory`; the frames with :mod:`evdense.evaluate.images` against GT
+:mod:`evdense.evaluate.trajectory_errors`; the frames with :mod:`evdense.evaluate.images` against GT
 intensity rendered at their timestamps.
 """
 
@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 import open3d as o3d
 
-from evdense.align import apply_sim3
+from evdense.evaluate.align import apply_sim3
 from evdense.evaluate.geometry import (
     bbox_diagonal,
     evaluate_geometry,
@@ -27,7 +27,7 @@ from evdense.evaluate.geometry import (
     sample_surface,
 )
 from evdense.evaluate.images import compare_to_gt
-from evdense.evaluate.trajectory import evaluate_trajectory
+from evdense.evaluate.trajectory_errors import evaluate_trajectory
 from evdense.formats.cloud import read_cloud
 from evdense.formats.files import write_json_atomic
 from evdense.formats.frames import frame_paths_and_times
@@ -105,8 +105,8 @@ def gt_reference_samples(
     """
     if conf.completeness_reference == "full":
         return None, {"kind": "full", "num_samples": conf.num_samples}
-    from evdense.align import interpolate_poses
     from evdense.camera import load_camera
+    from evdense.poses import interpolate_poses
 
     t_gt, T_gt = read_tum(gt_dir / "trajectory.txt")
     times = np.linspace(t_gt.min(), t_gt.max(), conf.visibility_views)
@@ -318,7 +318,7 @@ def evaluate_source(
     t_est, T_est = read_tum(traj_path)
     traj = evaluate_trajectory(t_est, T_est, t_gt, T_gt)
     result["trajectory"] = traj.to_dict()
-    from evdense.align import align_trajectory_to_gt
+    from evdense.evaluate.align import align_trajectory_to_gt
 
     ce = align_trajectory_to_gt(t_est, T_est, t_gt, T_gt)
     s, R, t = ce.scale, ce.R, ce.t
@@ -482,7 +482,7 @@ def evaluate_textured(
 
     from evdense.camera import load_camera
     from evdense.evaluate.images import log_reference
-    from evdense.mesh.render import render_textured
+    from evdense.evaluate.rendering import render_textured
     from evdense.mesh.texture import read_textured_mesh
     from evdense.sim.groundtruth import render_gt_intensity
 
@@ -501,7 +501,7 @@ def evaluate_textured(
         )
     ]
     t_gt, T_gt = read_tum(gt_dir / "trajectory.txt")
-    from evdense.align import interpolate_poses
+    from evdense.poses import interpolate_poses
 
     _, poses = interpolate_poses(mids, t_gt, T_gt)
     gt = render_gt_intensity(gt_dir, mids)

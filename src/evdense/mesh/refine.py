@@ -34,7 +34,7 @@ from evdense.mesh.geometry import (
     raycast_view,
     vertex_normals,
 )
-from evdense.mesh.io import Views
+from evdense.mesh.views import Views
 
 log = get_logger("mesh.refine")
 

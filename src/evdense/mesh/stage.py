@@ -22,10 +22,10 @@ from evdense.formats.files import write_json_atomic
 from evdense.formats.status import SFM_FAILED, STATS_NAME, is_failed, write_empty_products
 from evdense.log import get_logger
 from evdense.mesh.cleanup import CleanupConfig, clean_mesh
-from evdense.mesh.io import make_mesh, read_mesh, read_views, write_mesh
 from evdense.mesh.poisson import PoissonConfig, poisson_mesh
 from evdense.mesh.refine import RefineConfig, refine_vertices
 from evdense.mesh.texture import TextureConfig, texture_mesh_views, write_textured_mesh
+from evdense.mesh.views import make_mesh, read_mesh, read_views, write_mesh
 from evdense.mesh.visibility import VisibilityConfig, estimate_visibility, visibility_mesh
 
 log = get_logger("mesh")

@@ -43,7 +43,7 @@ from evdense.mesh.geometry import (
     raycast_view,
     sample_bilinear,
 )
-from evdense.mesh.io import Views, write_png
+from evdense.mesh.views import Views, write_png
 
 log = get_logger("mesh.texture")
 
@@ -719,7 +719,7 @@ def write_glb(path: str | Path, tm: TexturedMesh) -> Path:
 def read_textured_mesh(obj_path: str | Path) -> TexturedMesh:
     """Read an OBJ with one material and ``map_Kd`` texture (as written by :func:`write_textured_mesh`;
     triangles only, ``f v/vt`` or ``f v/vt/vn``)."""
-    from evdense.mesh.io import read_image
+    from evdense.mesh.views import read_image
 
     obj_path = Path(obj_path)
     if not obj_path.is_file():

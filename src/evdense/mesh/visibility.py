@@ -41,7 +41,7 @@ from scipy.spatial import Delaunay, cKDTree
 
 from evdense.log import get_logger
 from evdense.mesh.geometry import in_image, median_spacing, project
-from evdense.mesh.io import Views
+from evdense.mesh.views import Views
 
 log = get_logger("mesh.visibility")
 

@@ -26,7 +26,7 @@ import numpy as np
 
 from evdense.formats.cloud import PointCloud, read_cloud, read_vis_file, vis_path
 from evdense.log import get_logger, progress
-from evdense.mvs.io import read_colmap_array
+from evdense.mvs.maps_io import read_colmap_array
 from evdense.mvs.workspace import Workspace
 
 log = get_logger("mvs")

@@ -18,15 +18,14 @@ from typing import Any
 import h5py
 import numpy as np
 from scipy.spatial import cKDTree
-from scipy.spatial.transform import Rotation, Slerp
 
 from evdense.camera import Camera, load_camera
 from evdense.formats.cloud import read_cloud
 from evdense.formats.files import write_json_atomic
 from evdense.formats.frames import read_frames
 from evdense.log import get_logger
-from evdense.mvs.io import read_colmap_array
-from evdense.poses import invert_pose, read_tum
+from evdense.mvs.maps_io import read_colmap_array
+from evdense.poses import interpolate_poses, invert_pose, read_tum
 
 log = get_logger("mvs")
 
@@ -42,20 +41,6 @@ class OracleConfig:
     depth_tolerance: float = 0.01
     """A point is visible in another frame when its depth there matches the GT depth within this
     relative tolerance."""
-
-
-def interpolate_poses(t_query: np.ndarray, t: np.ndarray, T_wc: np.ndarray) -> np.ndarray:
-    """Camera-to-world poses ``(N, 4, 4)`` at ``t_query`` (seconds): slerp of rotations, linear
-    translations; clamped to the trajectory's time span."""
-    tq = np.clip(np.asarray(t_query, np.float64), t[0], t[-1])
-    out = np.tile(np.eye(4), (len(tq), 1, 1))
-    if len(t) == 1:
-        out[:] = T_wc[0]
-        return out
-    out[:, :3, :3] = Slerp(t, Rotation.from_matrix(T_wc[:, :3, :3]))(tq).as_matrix()
-    for k in range(3):
-        out[:, k, 3] = np.interp(tq, t, T_wc[:, k, 3])
-    return out
 
 
 def write_known_model(
@@ -121,7 +106,7 @@ def _read_gt(gt_dir: Path) -> tuple[Camera, list[str], np.ndarray, np.ndarray]:
     frames = read_frames(gt_dir / "frames")
     names, times = [f.name for f in frames], np.array([f.t for f in frames])
     t, T = read_tum(gt_dir / "trajectory.txt")
-    return cam, names, times, interpolate_poses(times, t, T)
+    return cam, names, times, interpolate_poses(np.clip(times, t.min(), t.max()), t, T)[1]
 
 
 def sample_tracks(

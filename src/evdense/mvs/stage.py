@@ -36,7 +36,7 @@ from evdense.formats.cloud import write_cloud
 from evdense.formats.files import write_json_atomic
 from evdense.log import get_logger, progress
 from evdense.mvs.fusion import FusionConfig, fuse_workspace
-from evdense.mvs.io import write_colmap_array, write_previews
+from evdense.mvs.maps_io import write_colmap_array, write_previews
 from evdense.mvs.patchmatch import (
     MAX_COST,
     DepthNormalMap,

@@ -25,7 +25,7 @@ from scipy.sparse import csc_matrix
 from evdense.camera import Camera
 from evdense.formats.files import write_text_atomic
 from evdense.log import get_logger
-from evdense.mvs.io import read_colmap_array
+from evdense.mvs.maps_io import read_colmap_array
 from evdense.mvs.patchmatch import DepthNormalMap, StereoView
 
 log = get_logger("mvs")

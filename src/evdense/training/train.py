@@ -526,7 +526,7 @@ def run_training(
     ``evaluate``. ``workers``: processes simulating the data.
     """
     from evdense.training.data import generate_dataset
-    from evdense.training.evaluate import EvalConfig, evaluate_methods
+    from evdense.training.heldout import EvalConfig, evaluate_methods
 
     run_dir = Path(run_dir)
     weights_path = Path(weights_path) if weights_path else run_dir / "evfirenet.pt"

@@ -10,7 +10,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.spatial.transform import Rotation, Slerp
+
+from evdense.poses import interpolate_poses
 
 
 def umeyama_sim3(
@@ -79,29 +80,6 @@ def match_timestamps(
     pick = np.where(np.abs(ts[left] - t_query) <= np.abs(ts[right] - t_query), left, right)
     ok = np.abs(ts[pick] - t_query) <= max_dt
     return np.nonzero(ok)[0], order[pick[ok]]
-
-
-def interpolate_poses(
-    t_query: np.ndarray, t_ref: np.ndarray, T_ref: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
-    """Ground-truth poses at ``t_query`` (seconds) by linear / slerp interpolation of ``T_ref``.
-
-    Returns ``(valid, T)``: a boolean mask ``(M,)`` of queries inside ``[t_ref.min(), t_ref.max()]``
-    and the interpolated poses ``(valid.sum(), 4, 4)``.
-    """
-    t_query = np.asarray(t_query, dtype=np.float64)
-    order = np.argsort(t_ref)
-    tr, Tr = np.asarray(t_ref, dtype=np.float64)[order], np.asarray(T_ref)[order]
-    valid = (t_query >= tr[0]) & (t_query <= tr[-1])
-    tq = t_query[valid]
-    T = np.tile(np.eye(4), (len(tq), 1, 1))
-    if len(tr) == 1:
-        T[:] = Tr[0]
-        return valid, T
-    T[:, :3, :3] = Slerp(tr, Rotation.from_matrix(Tr[:, :3, :3]))(tq).as_matrix()
-    for k in range(3):
-        T[:, k, 3] = np.interp(tq, tr, Tr[:, k, 3])
-    return valid, T
 
 
 def trajectory_length(positions: np.ndarray) -> float:

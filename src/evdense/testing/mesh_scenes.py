@@ -10,7 +10,7 @@ import open3d as o3d
 
 from evdense.camera import Camera
 from evdense.mesh.geometry import camera_rays, face_normals, make_scene, raycast_view
-from evdense.mesh.io import Views
+from evdense.mesh.views import Views
 from evdense.poses import look_at
 
 ColourFn = Callable[[np.ndarray, np.ndarray], np.ndarray]

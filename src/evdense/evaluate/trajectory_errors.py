@@ -2,7 +2,7 @@
 
 Poses are camera-to-world 4x4 matrices; timestamps in seconds. Monocular SfM has no scale, so the
 estimate is aligned to the ground truth with a similarity (Umeyama on camera centres, see
-:mod:`evdense.align`) before any error is measured.
+:mod:`evdense.evaluate.align`) before any error is measured.
 """
 
 from __future__ import annotations
@@ -11,12 +11,12 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from evdense.align import (
+from evdense.evaluate.align import (
     apply_sim3_to_poses,
     camera_centre_errors,
-    interpolate_poses,
     match_timestamps,
 )
+from evdense.poses import interpolate_poses
 
 
 @dataclass
