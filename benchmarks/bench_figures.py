@@ -26,6 +26,8 @@ from pathlib import Path
 
 import numpy as np
 
+from evdense.formats.layout import Layout
+
 ROOT = Path(__file__).resolve().parents[1]
 BACKGROUND = np.array([31, 31, 36])  # the viewer's clear colour (0.12, 0.12, 0.14)
 
@@ -39,22 +41,19 @@ def rule_seconds(tsv: Path) -> float | None:
 
 def sources_of(results: Path, dataset: str) -> dict[str, dict[str, str | None]]:
     """The SourceFiles of every source that has an evaluation (what rule plot_dataset passes)."""
+    layout = Layout(str(results))
     out = {}
-    for metrics in sorted((results / dataset / "eval").glob("*/metrics.json")):
+    for metrics in sorted(Path(layout.stage(dataset, "eval")).glob("*/metrics.json")):
         src = metrics.parent.name
-        frames = (
-            results / dataset / ("gt" if src == "gt" else "conventional") / "frames"
-            if src in ("gt", "conventional")
-            else results / dataset / "frames" / src
-        )
-        mesh_root = results / dataset / "mesh" / src
+        mesh_root = Path(layout.stage(dataset, "mesh")) / src
         method = next((p.name for p in mesh_root.iterdir() if p.is_dir()), "poisson")
+        _, refined, textured = layout.mesh_products(dataset, src, method)
         out[src] = {
-            "frames": str(frames),
-            "sfm": str(results / dataset / "sfm" / src),
-            "dense": str(results / dataset / "mvs" / src / "fused.ply"),
-            "refined": str(mesh_root / method / "refined.ply"),
-            "textured": str(mesh_root / method / "textured" / "mesh.obj"),
+            "frames": layout.frames(dataset, src),
+            "sfm": layout.sfm(dataset, src),
+            "dense": layout.dense_cloud(dataset, src),
+            "refined": refined,
+            "textured": textured,
             "metrics": str(metrics),
         }
     return out

@@ -307,6 +307,7 @@ def _run_reconstruct(args: argparse.Namespace) -> int:
     import yaml
 
     from evdense.config import REPO_ROOT, load_config
+    from evdense.formats.layout import Layout
 
     rec = Path(args.recording).resolve()
     if not rec.exists():
@@ -329,20 +330,23 @@ def _run_reconstruct(args: argparse.Namespace) -> int:
     rc = subprocess.call(cmd)
     if rc or args.dry_run:
         return rc
-    res = out / "results" / name
+    layout = Layout(str(out / "results"))
+    res = Path(layout.dataset(name))
     print(f"\nresults of {rec} in {res}:")
-    for sfm in sorted((res / "sfm").iterdir()):
+    for sfm in sorted(Path(layout.stage(name, "sfm")).iterdir()):
         src = sfm.name
-        meshes = sorted((res / "mesh" / src).glob("*/textured/mesh.obj"))
+        meshes = sorted((Path(layout.stage(name, "mesh")) / src).glob("*/textured/mesh.obj"))
         status = "SfM failed (see stats.json)" if _failed(sfm) else "ok"
         print(f"  {src}: {status}")
         print(f"    COLMAP model   {sfm / 'sparse' / '0'}")
-        print(f"    dense cloud    {res / 'mvs' / src / 'fused.ply'}")
+        print(f"    dense cloud    {layout.dense_cloud(name, src)}")
         for m in meshes:
             print(f"    textured mesh  {m}")
-        metrics = res / "eval" / src / "metrics.json"
+        metrics = Path(layout.metrics(name, src))
         if metrics.is_file():
             print(f"    metrics        {metrics}")
+    if Path(layout.mesh_page(name)).is_file():
+        print(f"  meshes page    {layout.mesh_page(name)}")
     summary = out / "results" / "summary" / "summary.md"
     if summary.is_file():
         print(f"  summary        {summary}")

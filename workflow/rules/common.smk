@@ -6,10 +6,14 @@ import re
 from pathlib import Path
 
 from evdense.config import all_datasets, check_config
+from evdense.formats.layout import Layout
 
 check_config(config, base_dir=workflow.basedir)
 
 DATASETS = all_datasets(config)
+LAYOUT = Layout(
+    "results"
+)  # every path under results/ is spelled by evdense.formats.layout
 
 
 def repo_relative(path):
@@ -78,7 +82,7 @@ def evaluated_datasets():
 def all_metrics_files():
     """One metrics file per evaluated dataset and image source."""
     return [
-        f"results/{name}/eval/{src}/metrics.json"
+        LAYOUT.metrics(name, src)
         for name in evaluated_datasets()
         for src in image_sources(name)
     ]
@@ -121,15 +125,15 @@ def dataset_targets(name):
     """
     targets = [
         f"results/{name}/events/summary",
-        f"results/{name}/gt",
-        f"results/{name}/conventional",
+        LAYOUT.gt(name),
+        LAYOUT.source_images(name, "conventional"),
     ]
-    targets += [f"results/{name}/frames/{src}" for src in event_frame_sources()]
+    targets += [LAYOUT.source_images(name, src) for src in event_frame_sources()]
     for src in image_sources(name):
-        targets += [f"results/{name}/sfm/{src}", f"results/{name}/mvs/{src}/fused.ply"]
+        targets += [LAYOUT.sfm(name, src), LAYOUT.dense_cloud(name, src)]
         targets += mesh_products(name, src)
     if config["evaluate"]["figures"]:
-        targets += [f"results/{name}/figures", f"results/{name}/meshes.html"]
+        targets += [LAYOUT.figures(name), LAYOUT.mesh_page(name)]
     return targets
 
 
@@ -152,20 +156,8 @@ def image_sources(name):
     return sources
 
 
-def source_images(dataset, source):
-    """The rule output that holds the frames of an image source (gt/ and conventional/ hold frames/)."""
-    fixed = {
-        "gt": f"results/{dataset}/gt",
-        "oracle": f"results/{dataset}/gt",
-        "conventional": f"results/{dataset}/conventional",
-    }
-    return fixed.get(source, f"results/{dataset}/frames/{source}")
-
-
-def source_frames_dir(dataset, source):
-    """The folder of PNG frames + timestamps.txt of an image source."""
-    base = source_images(dataset, source)
-    return f"{base}/frames" if source in ("gt", "oracle", "conventional") else base
+source_images = LAYOUT.source_images  # the rule output holding a source's frames
+source_frames_dir = LAYOUT.frames  # the folder of PNG frames + timestamps.txt
 
 
 def run_labels(dataset, source):

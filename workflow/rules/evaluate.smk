@@ -7,14 +7,14 @@
 def evaluate_inputs(wildcards):
     d, s = wildcards.dataset, wildcards.source
     inputs = {
-        "gt": f"results/{d}/gt",
-        "sfm": f"results/{d}/sfm/{s}",
+        "gt": LAYOUT.gt(d),
+        "sfm": LAYOUT.sfm(d, s),
         "images": source_images(d, s),
-        "dense": f"results/{d}/mvs/{s}/fused.ply",
+        "dense": LAYOUT.dense_cloud(d, s),
         "meshes": mesh_products(d, s),
     }
     if d in RECORDINGS and "conventional" in image_sources(d):
-        inputs["reference"] = f"results/{d}/conventional"  # its APS frames
+        inputs["reference"] = source_images(d, "conventional")  # its APS frames
     return inputs
 
 
@@ -34,7 +34,7 @@ rule evaluate_source:
         frames=lambda w: source_frames_dir(w.dataset, w.source),
         mesh_names=lambda w: list(mesh_product_names()),
         reference=lambda w: (
-            f"results/{w.dataset}/conventional/frames"
+            source_frames_dir(w.dataset, "conventional")
             if w.dataset in RECORDINGS
             else None
         ),

@@ -8,7 +8,7 @@
 
 def mesh_dir(dataset, source, method=None):
     """results/{dataset}/mesh/{source}/{method} (method defaults to config mesh.method)."""
-    return f"results/{dataset}/mesh/{source}/{method or config['mesh']['method']}"
+    return LAYOUT.mesh_dir(dataset, source, method or config["mesh"]["method"])
 
 
 def mesh_sections(*names):
@@ -24,8 +24,7 @@ def mesh_product_names():
 
 def mesh_products(dataset, source):
     """The mesh products of a source with the configured method: raw mesh, refined, textured OBJ."""
-    d = mesh_dir(dataset, source)
-    return [f"{d}/mesh.ply", f"{d}/refined.ply", f"{d}/textured/mesh.obj"]
+    return list(LAYOUT.mesh_products(dataset, source, config["mesh"]["method"]))
 
 
 rule mesh_surface:

@@ -31,13 +31,11 @@ def dataset_figure_sources(dataset):
         mesh, refined, textured = mesh_products(dataset, src)
         out[src] = {
             "frames": source_frames_dir(dataset, src),
-            "sfm": f"results/{dataset}/sfm/{src}",
-            "dense": f"results/{dataset}/mvs/{src}/fused.ply",
+            "sfm": LAYOUT.sfm(dataset, src),
+            "dense": LAYOUT.dense_cloud(dataset, src),
             "refined": refined,
             "textured": textured,
-            "metrics": (
-                f"results/{dataset}/eval/{src}/metrics.json" if evaluated else None
-            ),
+            "metrics": LAYOUT.metrics(dataset, src) if evaluated else None,
         }
     return out
 
@@ -51,11 +49,7 @@ def dataset_figure_inputs(wildcards):
     for src, f in dataset_figure_sources(d).items():
         files += [f["sfm"], f["dense"], f["refined"], f["textured"]]
         files += [f["metrics"]] if f["metrics"] else []
-    return {
-        "events": f"results/{d}/events/events.h5",
-        "gt": f"results/{d}/gt",
-        "products": files,
-    }
+    return {"events": LAYOUT.events(d), "gt": LAYOUT.gt(d), "products": files}
 
 
 rule plot_dataset:
@@ -63,14 +57,14 @@ rule plot_dataset:
         unpack(dataset_figure_inputs),
     output:
         figures=report(
-            directory("results/{dataset}/figures"),
+            directory(LAYOUT.figures("{dataset}")),
             patterns=["{name}.png"],
             caption="../report/dataset_figures.rst",
             category="Reconstructions",
             subcategory="{dataset}",
         ),
         page=report(
-            "results/{dataset}/meshes.html",
+            LAYOUT.mesh_page("{dataset}"),
             caption="../report/meshes_page.rst",
             category="Reconstructions",
             subcategory="{dataset}",
