@@ -21,7 +21,7 @@ from evdense.sim.conventional import (
     subrender_times,
 )
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 
 
 def moving_edge(h: int, w: int, speed_px_s: float, x0: float = 5.0):

@@ -92,7 +92,7 @@ def test_voxel_clip_keeps_an_hdr_burst_from_drowning_the_texture(stream):
         voxels = vf.read()
     burst = voxels.copy()
     burst[:, 2, :6, :6] += 40.0
-    net = load_checkpoint(Path(__file__).parents[1] / "resources/weights/evfirenet.pt").net
+    net = load_checkpoint(Path(__file__).parents[2] / "resources/weights/evfirenet.pt").net
     plain = NetworkReconstructor(copy.deepcopy(net)).run(voxels)
     uncapped = NetworkReconstructor(copy.deepcopy(net)).run(burst)
     capped = NetworkReconstructor(copy.deepcopy(net), voxel_clip=2.0).run(burst)
@@ -114,7 +114,7 @@ def test_bfloat16_frames_stay_close_to_float32(stream, arch):
         voxels = vf.read()
     torch.manual_seed(1)
     if arch == "firenet":  # our shipped weights
-        net = load_checkpoint(Path(__file__).parents[1] / "resources/weights/evfirenet.pt").net
+        net = load_checkpoint(Path(__file__).parents[2] / "resources/weights/evfirenet.pt").net
     else:
         net = E2VID(base_channels=8).eval()
     ref = NetworkReconstructor(copy.deepcopy(net)).run(voxels)

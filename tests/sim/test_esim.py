@@ -17,7 +17,7 @@ from evdense.sim.esim import (
     write_event_stream,
 )
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 
 
 def ideal(**kw) -> EventCameraConfig:
