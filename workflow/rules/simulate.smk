@@ -1,7 +1,7 @@
 # Simulation of synthetic datasets: ground truth (top), event camera and conventional camera.
 
 
-# ---- scenes, trajectories, rendering, ground truth (owner: sim-scene) ----
+# ---- scenes, trajectories, rendering, ground truth ----
 
 
 rule simulate_groundtruth:
@@ -22,7 +22,7 @@ rule simulate_groundtruth:
         "../scripts/simulate_groundtruth.py"
 
 
-# ---- event camera and conventional camera (owner: sim-cameras) ----
+# ---- event camera and conventional camera ----
 # Only synthetic datasets (with `scene`); real recordings get events/events.h5 from `ingest`.
 
 

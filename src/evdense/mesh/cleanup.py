@@ -31,7 +31,7 @@ class CleanupConfig:
     """Taubin smoothing iterations (lambda 0.5, mu -0.53: smooths without shrinking); 0 for none,
     the default: on the default scene's real clouds every iteration lowered the mesh's F-score
     (precision rises, recall falls more); on a synthetic cloud with 8.7 mm of Gaussian noise 5
-    iterations raised it (docs/benchmarks.md, issue 7)."""
+    iterations raised it (docs/benchmarks.md)."""
     smooth_boundary: str = "free"
     """What Taubin smoothing does with vertices on open borders: ``free`` treats them as any other
     vertex (the border creeps inwards a little), ``curve`` smooths them along the border only,
