@@ -169,11 +169,15 @@ def check_config(config: dict[str, Any], base_dir: str | Path = ".") -> None:
                 rec = base_dir / rec
             if not rec.exists():
                 raise ConfigError(f"config key 'datasets.{name}.recording': no such file {rec}")
-            for key in ("calibration", "gt_mesh", "gt_trajectory"):
+            if ds.get("gt_mesh") and ds.get("gt_depth"):
+                raise ConfigError(
+                    f"config key 'datasets.{name}.gt_depth': give gt_mesh or gt_depth, not both"
+                )
+            for key in ("calibration", "gt_mesh", "gt_trajectory", "gt_depth"):
                 if ds.get(key) and not (base_dir / ds[key]).exists():
                     raise ConfigError(f"config key 'datasets.{name}.{key}': no such file {ds[key]}")
             continue
-        for key in ("gt_mesh", "gt_trajectory"):
+        for key in ("gt_mesh", "gt_trajectory", "gt_depth"):
             if ds.get(key):
                 raise ConfigError(f"config key 'datasets.{name}.{key}': only for a recording (a "
                                   "synthetic scene has its own GT)")  # fmt: skip

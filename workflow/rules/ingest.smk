@@ -13,7 +13,7 @@ def ingest_inputs(wildcards):
     inputs = {"recording": ds["recording"]}
     if ds.get("calibration"):
         inputs["calibration"] = ds["calibration"]
-    for key in ("gt_mesh", "gt_trajectory"):
+    for key in ("gt_mesh", "gt_trajectory", "gt_depth"):
         if ds.get(key):
             inputs[key] = ds[key]
     return inputs

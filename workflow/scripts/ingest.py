@@ -20,4 +20,5 @@ ingest_recording(
     reader_options={"topic": ds["topic"]} if ds.get("topic") else None,
     gt_mesh=sm.input.get("gt_mesh"),
     gt_trajectory=sm.input.get("gt_trajectory"),
+    gt_depth=sm.input.get("gt_depth"),
 )

@@ -10,6 +10,8 @@ hold is listed in the manifest):
 - ``gt_dir/intrinsics.yaml`` and ``gt_dir/cameras.txt``: the camera (from the calibration file
   given, else from the recording), when known;
 - ``gt_dir/trajectory.txt``: the ground-truth trajectory (TUM, camera-to-world), when present;
+- ``gt_dir/mesh.ply``: the ground-truth surface, when given as a mesh (``gt_mesh``) or as depth
+  maps fused with the GT poses (``gt_depth``, :mod:`evdense.io.gt_depth`);
 - ``manifest_out``: JSON listing the above (``null`` for what was not found), the sensor size and
   where it came from, counts, and every correction the validation made.
 """
@@ -101,6 +103,7 @@ class IngestResult:
     trajectory_source: str | None = None
     gt_mesh: str | None = None
     gt_mesh_source: str | None = None
+    """The GT surface given (``gt_mesh``), or the depth maps it was fused from (``gt_depth``)."""
     corrections: list[str] = field(default_factory=list)
     validation: dict[str, Any] = field(default_factory=dict)
     reader: dict[str, Any] = field(default_factory=dict)
@@ -227,6 +230,29 @@ def import_gt_mesh(src: str | Path, out: Path) -> Path:
     return out
 
 
+def surface_from_gt_depth(gt_depth: str | Path, gt_dir: Path, result: IngestResult) -> Path:
+    """Fuse the GT depth maps into ``gt_dir/mesh.ply`` with the GT poses and the camera that the
+    ingest wrote to ``gt_dir``; ``ValueError`` naming ``gt_depth`` when either is missing."""
+    from evdense.formats.files import atomic_path
+    from evdense.io.gt_depth import fuse_depth_maps, read_depth_maps
+
+    if result.trajectory is None or result.intrinsics is None:
+        raise ValueError(
+            f"{gt_depth}: GT depth needs the GT poses (gt_trajectory, or a recording that holds "
+            "them) and a calibration, to be fused into a surface"
+        )
+    import open3d as o3d
+
+    depth, t = read_depth_maps(gt_depth)
+    t_gt, T_gt = read_tum(result.trajectory)
+    mesh = fuse_depth_maps(depth, t, load_camera(result.intrinsics), t_gt, T_gt)
+    out = gt_dir / "mesh.ply"
+    with atomic_path(out, keep_suffix=True) as tmp:
+        if not o3d.io.write_triangle_mesh(str(tmp), mesh):
+            raise OSError(f"{tmp}: could not write the GT surface")
+    return out
+
+
 def ingest_recording(
     recording: str | Path,
     events_out: str | Path,
@@ -241,6 +267,7 @@ def ingest_recording(
     reader_options: dict[str, Any] | None = None,
     gt_mesh: str | Path | None = None,
     gt_trajectory: str | Path | None = None,
+    gt_depth: str | Path | None = None,
 ) -> IngestResult:
     """Convert ``recording`` to the canonical event file ``events_out`` and copy its side data.
 
@@ -251,9 +278,13 @@ def ingest_recording(
     ``manifest_out`` are optional (see the module docstring). ``gt_mesh``: the recording's GT
     surface (a triangle mesh in the frame of its GT poses), written to ``gt_dir/mesh.ply``;
     ``gt_trajectory``: a TUM file of GT camera-to-world poses in the recording's clock (seconds),
-    which replaces any trajectory the recording holds. Raises ``ValueError`` naming the
-    file and position on bad input; no output appears under its final name unless complete.
+    which replaces any trajectory the recording holds; ``gt_depth``: GT depth maps (see
+    :mod:`evdense.io.gt_depth`), fused with the GT poses and the camera into ``gt_dir/mesh.ply``
+    (instead of ``gt_mesh``). Raises ``ValueError`` naming the file and position on bad input; no
+    output appears under its final name unless complete.
     """
+    if gt_mesh is not None and gt_depth is not None:
+        raise ValueError(f"{gt_depth}: give gt_mesh or gt_depth, not both ({gt_mesh})")
     cfg = config or IngestConfig()
     recording = Path(recording)
     events_out = Path(events_out)
@@ -274,12 +305,15 @@ def ingest_recording(
         if gt_mesh is not None and gt_dir is not None:
             result.gt_mesh = str(import_gt_mesh(gt_mesh, Path(gt_dir) / "mesh.ply"))
             result.gt_mesh_source = str(gt_mesh)
+        if gt_depth is not None and gt_dir is not None:
+            result.gt_mesh = str(surface_from_gt_depth(gt_depth, Path(gt_dir), result))
+            result.gt_mesh_source = str(gt_depth)
     except (KeyboardInterrupt, MemoryError):
         staged.unlink(missing_ok=True)
         raise
     except Exception as e:
         staged.unlink(missing_ok=True)
-        for side in (calibration, gt_mesh, gt_trajectory):
+        for side in (calibration, gt_mesh, gt_trajectory, gt_depth):
             if side and str(Path(side)) in str(e):
                 raise as_input_error(Path(side), e) from e
         raise as_input_error(recording, e) from e
