@@ -334,9 +334,9 @@ def _errors(name, out_dir, files, L, gt, gt_mesh, camera, conf) -> list[Path]:
         for vname, (cam, T_wc) in picks.items():
             dist, shade = distance_view(seen, other, cam, T_wc)
             label = (
-                "reconstruction by distance to GT (precision)"
+                "precision: the reconstruction by its distance to GT"
                 if kind == "precision"
-                else "GT by distance to the reconstruction (completeness)"
+                else "completeness: GT by its distance to the reconstruction"
             )
             cells.append((f"{label}\n{vname}", dist, shade))
     f_label = _f_label(L.metrics, "refined", conf.default_threshold)

@@ -277,14 +277,16 @@ def error_views(
     cmap = colormaps[ERROR_CMAP]
     ncol = 2
     nrow = (len(cells) + ncol - 1) // ncol
-    fig, axes = plt.subplots(nrow, ncol, figsize=(3.4 * ncol, 2.7 * nrow), squeeze=False)
+    fig, axes = plt.subplots(nrow, ncol, figsize=(3.8 * ncol, 2.8 * nrow), squeeze=False)
     for ax, (label, dist, shade) in zip(axes.flat, cells, strict=False):
         rgb = np.ones(dist.shape + (3,))
         m = np.isfinite(dist)
         rgb[m] = cmap(norm(np.minimum(dist[m], 2 * tau)))[:, :3] * (0.45 + 0.55 * shade[m][:, None])
         ax.imshow(rgb)
         within = float(np.mean(dist[m] < tau)) if m.any() else float("nan")
-        ax.set_title(f"{label}\n{100 * within:.0f} % of pixels within the threshold", fontsize=7)
+        ax.set_title(
+            f"{label}\n{100 * within:.0f} % of the pixels within the threshold", fontsize=6.5
+        )
         ax.axis("off")
     for ax in list(axes.flat)[len(cells) :]:
         ax.axis("off")
