@@ -19,12 +19,12 @@ from evdense.poses import read_tum
 from evdense.sfm import (
     SfmConfig,
     SfmError,
-    _calibrated_camera,
     read_sfm_trajectory,
     run_sfm,
     select_frames,
     set_options,
 )
+from evdense.sfm.stage import _calibrated_camera
 
 # Half the DAVIS346 resolution keeps SfM at a few seconds; f = 125 px, ~50 deg horizontal FoV.
 SMALL_CAMERA = {"width": 173, "height": 130, "fx": 125.0, "fy": 125.0, "cx": 86.0, "cy": 64.5}
@@ -254,7 +254,7 @@ def test_calibration_is_rescaled_to_the_frames(tmp_path):
 
 
 def test_real_davis_calibration_goes_to_colmap_opencv(anchors):
-    from evdense.sfm import _pycolmap_options
+    from evdense.sfm.stage import _pycolmap_options
 
     calib = anchors / "data" / "davis346_vins_calib.yaml"
     opts = _pycolmap_options(SfmConfig(calibration=str(calib)), threads=1, width=346, height=260)
