@@ -70,6 +70,10 @@ def test_recording_without_gt_surface_scores_its_trajectory(tmp_path):
     assert out["trajectory"]["ate_rmse"] == pytest.approx(0.0, abs=1e-6)
     assert out["trajectory"]["scale"] == pytest.approx(1 / 3)
     assert json.loads((tmp_path / "m.json").read_text())["trajectory"]["num_poses"] == 10
+    # the alignment is recorded, so that the figures draw the SfM cameras in the GT frame
+    a = out["alignment"]
+    moved = a["scale"] * est[:, :3, 3] @ np.asarray(a["R"]).T + np.asarray(a["t"])
+    np.testing.assert_allclose(moved, poses[::3, :3, 3], atol=1e-6)
     # a failed SfM is recorded as failed, with no trajectory
     (sfm / "stats.json").write_text(json.dumps({"failed": True, "error": "2 of 10 registered"}))
     out = evaluate_source(gt, sfm, tmp_path / "m2.json")

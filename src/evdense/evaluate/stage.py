@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 import open3d as o3d
 
-from evdense.evaluate.align import apply_sim3
+from evdense.evaluate.align import align_trajectory_to_gt, apply_sim3
 from evdense.evaluate.geometry import (
     bbox_diagonal,
     evaluate_geometry,
@@ -318,8 +318,6 @@ def evaluate_source(
     t_est, T_est = read_tum(traj_path)
     traj = evaluate_trajectory(t_est, T_est, t_gt, T_gt)
     result["trajectory"] = traj.to_dict()
-    from evdense.evaluate.align import align_trajectory_to_gt
-
     ce = align_trajectory_to_gt(t_est, T_est, t_gt, T_gt)
     s, R, t = ce.scale, ce.R, ce.t
 
@@ -345,12 +343,7 @@ def evaluate_source(
             ref, gt_mesh, conf.icp_max_distance * diag, max_points=conf.icp_max_points
         )
         result["icp"] = info
-    result["alignment"] = {
-        "scale": s,
-        "R": np.asarray(R).tolist(),
-        "t": np.asarray(t).tolist(),
-        "icp": H.tolist(),
-    }
+    result["alignment"] = alignment_record(s, R, t, H)
 
     textured = (meshes or {}).get("textured")
     if textured and Path(textured).exists() and (gt_dir / "scene.json").is_file():
@@ -390,6 +383,19 @@ def evaluate_source(
     return result
 
 
+def alignment_record(
+    s: float, R: np.ndarray, t: np.ndarray, icp: np.ndarray | None = None
+) -> dict[str, Any]:
+    """How the SfM frame was mapped onto GT: the Sim(3) from camera centres (``x -> s R x + t``)
+    and the ICP refinement applied after it (4x4; identity without a GT surface)."""
+    return {
+        "scale": s,
+        "R": np.asarray(R).tolist(),
+        "t": np.asarray(t).tolist(),
+        "icp": (np.eye(4) if icp is None else np.asarray(icp)).tolist(),
+    }
+
+
 def _evaluate_without_gt_geometry(
     gt_dir: Path,
     sfm_dir: Path,
@@ -413,6 +419,8 @@ def _evaluate_without_gt_geometry(
             raise ValueError(f"{sfm_dir}: no trajectory.txt (did SfM finish?)")
         t_est, T_est = read_tum(traj_path)
         result["trajectory"] = evaluate_trajectory(t_est, T_est, t_gt, T_gt).to_dict()
+        ce = align_trajectory_to_gt(t_est, T_est, t_gt, T_gt)
+        result["alignment"] = alignment_record(ce.scale, ce.R, ce.t)  # for the figures
         log.info("%s: trajectory against %s: %s", sfm_dir, gt_dir / "trajectory.txt",
                  {k: result["trajectory"].get(k) for k in ("ate_rmse", "ate_rmse_relative")})  # fmt: skip
     if frames_dir is not None and reference_frames is not None:
