@@ -174,3 +174,7 @@ def test_real_recording_runs_to_the_end(tmp_path, anchors):
         assert "registered" in ev_sfm["error"]
     table = pd.read_csv(tmp_path / "results" / "summary" / "metrics.csv")
     assert set(table["source"]) == {"conventional", "ours_n10000_b5"}
+    # its pictures: in the mocap's frame (GT poses, no GT surface, so no error views)
+    figs = {p.name for p in (res / "figures").glob("*.png")}
+    assert {"trajectory.png", "reconstructions.png", "frames.png", "event_frames.png"} <= figs
+    assert '"frame":"gt"' in (res / "meshes.html").read_text()
