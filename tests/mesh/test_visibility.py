@@ -8,7 +8,6 @@ import open3d as o3d
 import pytest
 
 from evdense.camera import Camera
-from evdense.config import validate_config
 from evdense.formats.cloud import read_cloud, read_vis_file, write_vis_file
 from evdense.mesh.cleanup import (
     CleanupConfig,
@@ -285,9 +284,7 @@ def test_clean_mesh_removes_small_components_and_decimates():
     assert 400 <= len(out.triangles) <= 500
 
 
-def test_mesh_config_matches_schema_defaults():
-    conf = validate_config({})
-    assert MeshConfig.from_dict(conf["mesh"]) == MeshConfig()
+def test_mesh_config_refuses_unknown_keys():
     with pytest.raises(ValueError, match="mesh.visibility"):
         MeshConfig.from_dict({"visibility": {"no_such_key": 1}})
 

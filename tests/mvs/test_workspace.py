@@ -230,25 +230,6 @@ def test_oracle_check_end_to_end(tmp_path):
     assert len(res["maps"]) == 8
 
 
-def test_schema_defaults_match_the_dataclasses():
-    """The `mvs` section of the config schema and the dataclasses carry the same defaults."""
-    from dataclasses import asdict
-
-    from evdense.config import validate_config
-    from evdense.mvs.oracle import OracleConfig
-    from evdense.mvs.stage import MVSConfig
-
-    conf = validate_config({})["mvs"]
-    schema_keys = {k: set(v) for k, v in conf.items() if isinstance(v, dict)}
-    for section, keys in schema_keys.items():
-        if section != "oracle":
-            assert keys == set(asdict(getattr(MVSConfig(), section))), section
-    oracle = conf.pop("oracle")
-    assert asdict(MVSConfig.from_dict(conf)) == asdict(MVSConfig())
-    oracle.pop("threshold")
-    assert OracleConfig(**oracle) == OracleConfig()
-
-
 def test_missing_frame_raises_before_any_map(tmp_path):
     import imageio.v3 as iio
 

@@ -12,7 +12,7 @@ import pytest
 from scipy import ndimage
 
 from evdense.camera import Camera
-from evdense.config import load_schema, validate_config
+from evdense.config import validate_config
 from evdense.evaluate.align import align_trajectory_to_gt
 from evdense.formats.frames import Frame, read_frames
 from evdense.poses import read_tum
@@ -220,13 +220,6 @@ def test_set_options_nested_dotted_enum_and_types():
         set_options(opts, {"min_num_matches": "many"}, "sfm.mapping")
     with pytest.raises(ValueError, match=r"sfm\.mapping\.min_num_matches.*not a group"):
         set_options(opts, {"min_num_matches": {"x": 1}}, "sfm.mapping")
-
-
-def test_schema_defaults_are_the_dataclass_defaults():
-    section = load_schema()["properties"]["sfm"]
-    defaults = validate_config({})["sfm"]
-    assert SfmConfig.from_dict(defaults) == SfmConfig()
-    assert set(section["properties"]) == set(SfmConfig.__dataclass_fields__)
 
 
 def test_select_frames_every_k_count_and_change(tmp_path):

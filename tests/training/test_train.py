@@ -259,22 +259,3 @@ def test_config_rejects_unknown_keys():
         TrainConfig.from_dict({"data": {"nope": 1}})
     with pytest.raises(ValueError, match="tbptt"):
         TrainConfig.from_dict({"sequence_length": 10, "tbptt_length": 4})
-
-
-def test_schema_defaults_match_the_train_dataclasses():
-    from dataclasses import asdict
-
-    import yaml
-    from conftest import REPO
-
-    schema = yaml.safe_load((REPO / "workflow" / "schemas" / "config.schema.yaml").read_text())
-    props = schema["properties"]["train"]["properties"]
-    defaults = asdict(TrainConfig())
-    data = defaults.pop("data")
-    assert set(props) - {"data"} == set(defaults)
-    for k, v in defaults.items():
-        assert props[k]["default"] == v and props[k].get("description"), k
-    dprops = props["data"]["properties"]
-    assert set(dprops) == set(data)
-    for k, v in data.items():
-        assert dprops[k]["default"] == v and dprops[k].get("description"), f"data.{k}"
