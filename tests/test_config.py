@@ -125,3 +125,13 @@ def test_every_section_agrees_with_its_dataclass(path):
                 )
 
     check(cls, props, defaults, path)
+
+
+def test_scenes_are_built_when_the_workflow_passes_the_builder(tmp_path):
+    from evdense.config import ConfigError, check_config
+    from evdense.sim.scene import load_scene
+
+    conf = validate_config({"datasets": {"odd": {"scene": "no_such_scene.yaml"}}})
+    check_config(conf, base_dir=tmp_path)  # config.py alone builds no scene
+    with pytest.raises(ConfigError, match=r"datasets\.odd"):
+        check_config(conf, base_dir=tmp_path, build_scene=load_scene)

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import copy
 import json
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -149,8 +150,14 @@ def all_datasets(config: dict[str, Any]) -> dict[str, dict[str, Any]]:
     return {**sweep_datasets(config), **config.get("datasets", {})}
 
 
-def check_config(config: dict[str, Any], base_dir: str | Path = ".") -> None:
-    """Checks beyond the schema, for every dataset: the scene builds (synthetic) or the file exists (real).
+def check_config(
+    config: dict[str, Any],
+    base_dir: str | Path = ".",
+    build_scene: Callable[[dict[str, Any], dict[str, Any]], Any] | None = None,
+) -> None:
+    """Checks beyond the schema, for every dataset: the files of a recording exist and its GT keys
+    make sense; with ``build_scene`` (the simulator's :func:`evdense.sim.scene.load_scene`, which
+    the workflow passes; this module imports no stage) every synthetic scene builds.
 
     Raises :class:`ConfigError` naming ``datasets.<name>.<key>``, or ``datasets`` when there is
     nothing to reconstruct.
@@ -181,9 +188,7 @@ def check_config(config: dict[str, Any], base_dir: str | Path = ".") -> None:
             if ds.get(key):
                 raise ConfigError(f"config key 'datasets.{name}.{key}': only for a recording (a "
                                   "synthetic scene has its own GT)")  # fmt: skip
-        try:
-            from evdense.sim.scene import load_scene
-        except ImportError:  # simulator not installed in this build
+        if build_scene is None:
             continue
         # speed and dynamic_range are range-checked by the schema and do not change the build.
         key = json.dumps(
@@ -195,6 +200,6 @@ def check_config(config: dict[str, Any], base_dir: str | Path = ".") -> None:
             continue
         built.add(key)
         try:
-            load_scene(ds, config.get("simulator", {}))
+            build_scene(ds, config.get("simulator", {}))
         except ValueError as e:
             raise ConfigError(f"config key 'datasets.{name}': {e}") from None

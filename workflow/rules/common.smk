@@ -6,9 +6,10 @@ import re
 from pathlib import Path
 
 from evdense.config import all_datasets, check_config
+from evdense.sim.scene import load_scene
 from evdense.formats.layout import Layout
 
-check_config(config, base_dir=workflow.basedir)
+check_config(config, base_dir=workflow.basedir, build_scene=load_scene)
 
 DATASETS = all_datasets(config)
 LAYOUT = Layout(
