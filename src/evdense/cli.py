@@ -12,6 +12,7 @@ import argparse
 import logging
 import sys
 from collections.abc import Callable
+from pathlib import Path
 
 from evdense.log import get_logger, setup_logging
 
@@ -307,7 +308,6 @@ def _run_reconstruct(args: argparse.Namespace) -> int:
     import yaml
 
     from evdense.config import REPO_ROOT, load_config
-    from evdense.formats.layout import Layout
 
     rec = Path(args.recording).resolve()
     if not rec.exists():
@@ -330,13 +330,23 @@ def _run_reconstruct(args: argparse.Namespace) -> int:
     rc = subprocess.call(cmd)
     if rc or args.dry_run:
         return rc
-    layout = Layout(str(out / "results"))
+    print_products(out / "results", name, rec)
+    return 0
+
+
+def print_products(results: Path, name: str, recording: Path | str = "") -> None:
+    """Where a dataset's products are: per source its status, COLMAP model, dense cloud, textured
+    meshes and metrics, then the mesh page and the run's summary."""
+    from evdense.formats.layout import Layout
+    from evdense.formats.status import is_failed
+
+    layout = Layout(str(results))
     res = Path(layout.dataset(name))
-    print(f"\nresults of {rec} in {res}:")
+    print(f"\nresults of {recording or name} in {res}:")
     for sfm in sorted(Path(layout.stage(name, "sfm")).iterdir()):
         src = sfm.name
         meshes = sorted((Path(layout.stage(name, "mesh")) / src).glob("*/textured/mesh.obj"))
-        status = "SfM failed (see stats.json)" if _failed(sfm) else "ok"
+        status = "SfM failed (see stats.json)" if is_failed(sfm) else "ok"
         print(f"  {src}: {status}")
         print(f"    COLMAP model   {sfm / 'sparse' / '0'}")
         print(f"    dense cloud    {layout.dense_cloud(name, src)}")
@@ -347,17 +357,9 @@ def _run_reconstruct(args: argparse.Namespace) -> int:
             print(f"    metrics        {metrics}")
     if Path(layout.mesh_page(name)).is_file():
         print(f"  meshes page    {layout.mesh_page(name)}")
-    summary = out / "results" / "summary" / "summary.md"
+    summary = Path(results) / "summary" / "summary.md"
     if summary.is_file():
         print(f"  summary        {summary}")
-    return 0
-
-
-def _failed(sfm_dir) -> bool:
-    import json
-
-    stats = sfm_dir / "stats.json"
-    return not stats.is_file() or bool(json.loads(stats.read_text()).get("failed"))
 
 
 SUBCOMMANDS: dict[str, tuple[str, Callable[[argparse.ArgumentParser], None]]] = {
