@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 import open3d as o3d
 import pytest
+import yaml
 
 from evdense.camera import Camera
 from evdense.formats.cloud import read_cloud, read_vis_file, write_vis_file
@@ -315,10 +316,16 @@ def test_mesh_surface_stage_from_a_workspace(tmp_path, rng):
     back = read_vis_file(str(cloud) + ".vis")
     assert all(np.array_equal(a, b) for a, b in zip(vis, back, strict=True))
     assert read_cloud(cloud).visibility is not None
-    out = mesh_surface(cloud, ws, tmp_path / "vis2" / "mesh.ply", "visibility", conf)
+    out_vis = out = mesh_surface(cloud, ws, tmp_path / "vis2" / "mesh.ply", "visibility", conf)
     assert np.abs(np.linalg.norm(np.asarray(read_mesh(out).vertices), axis=1) - 1).mean() < 0.01
     out = mesh_surface(cloud, ws, tmp_path / "poisson" / "mesh.ply", "poisson", conf)
     assert np.abs(np.linalg.norm(np.asarray(read_mesh(out).vertices), axis=1) - 1).mean() < 0.01
+    # the same stage from the command line (python -m evdense.mesh), with a config file
+    from evdense.mesh.__main__ import main
+
+    (tmp_path / "c.yaml").write_text(yaml.safe_dump({"mesh": conf}))
+    main(["--config", str(tmp_path / "c.yaml"), "surface", str(ws), str(tmp_path / "cli.ply")])
+    assert (tmp_path / "cli.ply").read_bytes() == out_vis.read_bytes()
     assert not list(tmp_path.rglob("*.partial*"))
     # Bad inputs name the file.
     with pytest.raises(ValueError, match="nothing.ply"):
