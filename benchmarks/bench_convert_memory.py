@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from evdense.io.prophesee import write_evt2
+from evdense.testing.recordings import write_evt2
 
 ROOT = Path(__file__).resolve().parents[1]
 W, H = 640, 480

@@ -22,12 +22,16 @@ import numpy as np
 
 from evdense.events.container import EventFile, Events, EventWriter
 from evdense.io import IngestConfig, ingest_recording, open_recording
-from evdense.io.aedat4 import write_aedat4
-from evdense.io.h5formats import write_e2vid_h5
-from evdense.io.numpy_io import write_npz
-from evdense.io.prophesee import write_dat, write_evt2, write_evt3
-from evdense.io.rosbag import write_rosbag1
-from evdense.io.text import write_rpg_text
+from evdense.testing.recordings import (
+    write_aedat4,
+    write_dat,
+    write_e2vid_h5,
+    write_evt2,
+    write_evt3,
+    write_npz,
+    write_rosbag1,
+    write_rpg_text,
+)
 
 W, H = 346, 260
 

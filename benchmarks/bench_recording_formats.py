@@ -36,10 +36,8 @@ import yaml
 
 from evdense.camera import load_camera
 from evdense.events.container import EventFile
-from evdense.io.aedat4 import write_aedat4
-from evdense.io.rosbag import write_rosbag1
-from evdense.io.text import write_rpg_text
 from evdense.poses import read_tum, write_tum
+from evdense.testing.recordings import write_aedat4, write_rosbag1, write_rpg_text
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -13,7 +13,7 @@ import pytest
 from evdense.errors import InputError
 from evdense.events.container import EventFile, Events, write_events
 from evdense.io import ingest_recording
-from evdense.io.text import write_rpg_text
+from evdense.testing.recordings import write_rpg_text
 
 
 def _events(n, rng, w=64, h=48):
@@ -140,7 +140,7 @@ def test_cli_prints_one_line_and_exits_2(tmp_path):
 
 @pytest.mark.parametrize("size", [b"99999999999", b"1099511627776", b"-5"])
 def test_absurd_sensor_size_in_a_header_is_refused(tmp_path, rng, size):
-    from evdense.io.prophesee import write_evt2
+    from evdense.testing.recordings import write_evt2
 
     ev = _events(100, rng)
     path = write_evt2(tmp_path / "r.raw", ev.t, ev.x, ev.y, ev.p, 64, 48)
@@ -153,7 +153,7 @@ def test_absurd_sensor_size_in_a_header_is_refused(tmp_path, rng, size):
 
 @pytest.mark.parametrize("t", [[-5, 1, 2], [0, 1, 2**63 + 5], [0, 1, 2**60]])
 def test_out_of_range_timestamps_are_refused(tmp_path, t):
-    from evdense.io.numpy_io import write_npz
+    from evdense.testing.recordings import write_npz
 
     write_npz(tmp_path / "r.npz", np.array(t, dtype=np.uint64 if t[-1] >= 2**63 else np.int64),
               np.array([1, 2, 3]), np.array([1, 2, 3]), np.array([1, -1, 1]))  # fmt: skip

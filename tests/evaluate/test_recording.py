@@ -85,7 +85,7 @@ def test_gt_mesh_of_a_recording_is_imported_and_checked(tmp_path, rng):
 
     from evdense.errors import InputError
     from evdense.io import ingest_recording
-    from evdense.io.text import write_rpg_text
+    from evdense.testing.recordings import write_rpg_text
 
     t = np.arange(100) * 100
     write_rpg_text(tmp_path / "rec", t, rng.integers(0, 32, 100), rng.integers(0, 24, 100),

@@ -86,7 +86,7 @@ def test_depth_png_folder_and_bad_depth_name_the_problem(tmp_path):
 
 def test_ingest_turns_gt_depth_into_the_gt_mesh(tmp_path, rng):
     from evdense.io import ingest_recording
-    from evdense.io.text import write_rpg_text
+    from evdense.testing.recordings import write_rpg_text
 
     mesh = _scene()
     t, T = _views(6)

@@ -13,13 +13,19 @@ import pytest
 from evdense.camera import Camera, load_camera
 from evdense.events.container import EventFile, Events, write_events
 from evdense.io import detect_format, ingest_recording, open_recording, validate_stream
-from evdense.io.aedat4 import write_aedat4
-from evdense.io.h5formats import write_e2vid_h5
-from evdense.io.numpy_io import write_npy, write_npz
-from evdense.io.prophesee import read_header, write_dat, write_evt2, write_evt3
-from evdense.io.rosbag import write_rosbag1
-from evdense.io.text import write_rpg_text
+from evdense.io.prophesee import read_header
 from evdense.poses import look_at, read_tum, write_tum
+from evdense.testing.recordings import (
+    write_aedat4,
+    write_dat,
+    write_e2vid_h5,
+    write_evt2,
+    write_evt3,
+    write_npy,
+    write_npz,
+    write_rosbag1,
+    write_rpg_text,
+)
 
 W, H = 346, 260
 

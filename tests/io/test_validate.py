@@ -20,11 +20,14 @@ from evdense.io import (
     open_recording,
     validate_stream,
 )
-from evdense.io.aedat4 import write_aedat4
-from evdense.io.h5formats import write_e2vid_h5
-from evdense.io.numpy_io import write_npz
-from evdense.io.prophesee import write_dat, write_evt3
-from evdense.io.text import write_rpg_text
+from evdense.testing.recordings import (
+    write_aedat4,
+    write_dat,
+    write_e2vid_h5,
+    write_evt3,
+    write_npz,
+    write_rpg_text,
+)
 
 W, H = 64, 48
 

@@ -148,34 +148,3 @@ def is_canonical_h5(path: str | Path) -> bool:
             return f.attrs.get("format") == FORMAT_NAME
     except OSError:
         return False
-
-
-def write_e2vid_h5(
-    path: str | Path,
-    t_us: np.ndarray,
-    x: np.ndarray,
-    y: np.ndarray,
-    p: np.ndarray,
-    width: int,
-    height: int,
-    ts_seconds: bool = True,
-    frames: list[tuple[int, np.ndarray]] | None = None,
-) -> Path:
-    """Write an E2VID-style HDF5 (``ts`` float64 seconds or int64 us, ``ps`` bool as the tools do).
-
-    ``frames``: optional ``(t_us, image uint8 (H, W))`` pairs stored as ``images/imageNNNNNNNNN``.
-    """
-    path = Path(path)
-    t_us = np.asarray(t_us, dtype=np.int64)
-    with h5py.File(path, "w") as f:
-        f.create_dataset("events/xs", data=np.asarray(x, dtype=np.int16))
-        f.create_dataset("events/ys", data=np.asarray(y, dtype=np.int16))
-        f.create_dataset("events/ts", data=t_us * 1e-6 if ts_seconds else t_us)
-        f.create_dataset("events/ps", data=np.asarray(p) > 0)
-        f.attrs["sensor_resolution"] = (height, width)
-        f.attrs["num_events"] = len(t_us)
-        for k, (ft, img) in enumerate(frames or []):
-            d = f.create_dataset(f"images/image{k:09d}", data=img)
-            d.attrs["timestamp"] = ft * 1e-6
-            d.attrs["size"] = img.shape
-    return path

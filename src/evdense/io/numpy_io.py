@@ -155,37 +155,3 @@ class NumpyRecording(Recording):
             yield RawEvents(
                 t, np.asarray(c[nm["x"]]), np.asarray(c[nm["y"]]), np.asarray(c[nm["p"]]), start=s
             )
-
-
-def write_npz(
-    path: str | Path,
-    t_us: np.ndarray,
-    x: np.ndarray,
-    y: np.ndarray,
-    p: np.ndarray,
-    width: int | None = None,
-    height: int | None = None,
-    compressed: bool = False,
-) -> Path:
-    """Write ``t`` (int64 us), ``x``, ``y`` (uint16), ``p`` (int8) and optional ``width``/``height`` to ``.npz``."""
-    arrays = {
-        "t": np.asarray(t_us, dtype=np.int64),
-        "x": np.asarray(x, dtype=np.uint16),
-        "y": np.asarray(y, dtype=np.uint16),
-        "p": np.asarray(p, dtype=np.int8),
-    }
-    if width is not None and height is not None:
-        arrays |= {"width": np.int64(width), "height": np.int64(height)}
-    (np.savez_compressed if compressed else np.savez)(path, **arrays)
-    return Path(path)
-
-
-def write_npy(
-    path: str | Path, t_us: np.ndarray, x: np.ndarray, y: np.ndarray, p: np.ndarray
-) -> Path:
-    """Write a structured ``.npy`` with fields ``t`` (int64 us), ``x``, ``y`` (uint16), ``p`` (int8)."""
-    dt = np.dtype([("t", "<i8"), ("x", "<u2"), ("y", "<u2"), ("p", "i1")])
-    a = np.empty(len(t_us), dtype=dt)
-    a["t"], a["x"], a["y"], a["p"] = t_us, x, y, p
-    np.save(path, a)
-    return Path(path)

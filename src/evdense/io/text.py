@@ -293,36 +293,3 @@ def _decimal_seconds_to_us(s: str, path: Path, line: int) -> int:
         return us + (1 if int(fp[6]) >= 5 else 0)
     except ValueError as e:
         raise ValueError(f"{path}: line {line}: cannot read timestamp {s!r}") from e
-
-
-def write_rpg_text(
-    folder: str | Path,
-    t_us: np.ndarray,
-    x: np.ndarray,
-    y: np.ndarray,
-    p: np.ndarray,
-    calib: Camera | None = None,
-) -> Path:
-    """Write ``events.txt`` (``t`` seconds with 6 decimals, ``p`` 0/1) and optionally ``calib.txt``.
-
-    ``t_us`` int64 microseconds, ``p`` in {-1, +1} or {0, 1}. Returns the events.txt path.
-    """
-    folder = Path(folder)
-    folder.mkdir(parents=True, exist_ok=True)
-    t_us = np.asarray(t_us, dtype=np.int64)
-    sec, frac = np.divmod(t_us, 1_000_000)
-    pp = (np.asarray(p) > 0).astype(np.int64)
-    out = folder / "events.txt"
-    with open(out, "w") as f:
-        for s in range(0, len(t_us), 1 << 20):
-            e = slice(s, s + (1 << 20))
-            cols = np.stack([sec[e], frac[e], np.asarray(x)[e], np.asarray(y)[e], pp[e]], axis=1)
-            np.savetxt(f, cols, fmt="%d.%06d %d %d %d")
-    if calib is not None:
-        (folder / "calib.txt").write_text(
-            " ".join(
-                f"{v:.10g}" for v in (calib.fx, calib.fy, calib.cx, calib.cy, *calib.dist, 0.0)
-            )
-            + "\n"
-        )
-    return out

@@ -58,12 +58,17 @@ def _toy_events(n: int = 3000, w: int = 64, h: int = 48, seed: int = 0):
 def make_seeds(folder: str | Path, anchors: str | Path | None = None) -> list[Seed]:
     """Write one small recording per format into ``folder`` (plus the anchors' real files)."""
     from evdense.events.container import Events, write_events
-    from evdense.io.aedat4 import write_aedat4
-    from evdense.io.h5formats import write_e2vid_h5
-    from evdense.io.numpy_io import write_npy, write_npz
-    from evdense.io.prophesee import write_dat, write_evt2, write_evt3
-    from evdense.io.rosbag import write_rosbag1
-    from evdense.io.text import write_rpg_text
+    from evdense.testing.recordings import (
+        write_aedat4,
+        write_dat,
+        write_e2vid_h5,
+        write_evt2,
+        write_evt3,
+        write_npy,
+        write_npz,
+        write_rosbag1,
+        write_rpg_text,
+    )
 
     d = Path(folder)
     d.mkdir(parents=True, exist_ok=True)
