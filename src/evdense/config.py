@@ -9,16 +9,20 @@ config fails before any job runs and nothing is written.
 from __future__ import annotations
 
 import copy
+import dataclasses
 import json
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import jsonschema
 import yaml
 
 REPO_ROOT = Path(__file__).resolve().parents[2]
 SCHEMA_PATH = REPO_ROOT / "workflow" / "schemas" / "config.schema.yaml"
+
+
+T = TypeVar("T")
 
 
 class ConfigError(ValueError):
@@ -56,6 +60,45 @@ def _extend_with_defaults(validator_class):
 
 
 _DefaultsValidator = _extend_with_defaults(jsonschema.Draft7Validator)
+
+
+def section_from_dict(
+    cls: type[T], d: Mapping[str, Any] | T | None, path: str, drop_none: bool = False
+) -> T:
+    """Build the dataclass ``cls`` from its config section ``d`` at ``path`` (``"mvs"``,
+    ``"simulator.event_camera"``, ...): missing keys take the defaults, nested dataclasses are
+    built from their sub-sections, NumPy scalars (Paramspace sweeps) become Python numbers, and
+    ``drop_none`` lets a ``null`` value mean "the default". The built object's ``check()`` runs
+    when it has one. Unknown keys raise ``ValueError`` naming the path, the keys and the known ones.
+    This is the one ``from_dict`` of every stage's config.
+    """
+    if isinstance(d, cls):
+        return d
+    d = dict(d or {})
+    fields = {f.name: f for f in dataclasses.fields(cls)}
+    unknown = sorted(set(d) - set(fields))
+    if unknown:
+        raise ValueError(f"{path}: unknown keys {unknown} (known: {sorted(fields)})")
+    kwargs: dict[str, Any] = {}
+    for k, v in d.items():
+        if v is None and drop_none:
+            continue
+        f = fields[k]
+        default = f.default_factory() if f.default_factory is not dataclasses.MISSING else f.default
+        if dataclasses.is_dataclass(default) and not isinstance(v, type(default)):
+            v = section_from_dict(type(default), v, f"{path}.{k}", drop_none)
+        elif isinstance(v, list):
+            v = [
+                x.item() if hasattr(x, "item") and not isinstance(x, str | bytes) else x for x in v
+            ]
+        elif hasattr(v, "item") and hasattr(v, "dtype"):
+            v = v.item()
+        kwargs[k] = v
+    conf = cls(**kwargs)
+    check = getattr(conf, "check", None)
+    if callable(check):
+        check()
+    return conf
 
 
 def load_schema(path: str | Path = SCHEMA_PATH) -> dict:

@@ -222,7 +222,7 @@ def test_presets_resolve_against_the_shared_options():
         resolve_config(section, "nope")
     with pytest.raises(ValueError, match="needs a checkpoint"):
         resolve_config({**section, "presets": {"e": {"method": "e2vid"}}}, "e")
-    with pytest.raises(ValueError, match="unknown reconstruct option"):
+    with pytest.raises(ValueError, match=r"reconstruct: unknown keys \[.colour.\]"):
         ReconstructConfig.from_dict({"method": "firenet", "colour": True})
 
 

@@ -180,7 +180,7 @@ def test_unknown_pycolmap_option_names_the_key_before_writing(noise_frames, tmp_
         ValueError, match=r"sfm\.extraction\.sift\.max_num_featurez.*SiftExtractionOptions"
     ):
         run_sfm(noise_frames, out, {"extraction": {"sift": {"max_num_featurez": 10}}})
-    with pytest.raises(ValueError, match=r"unknown key\(s\) \['matchr'\]"):
+    with pytest.raises(ValueError, match=r"sfm: unknown keys \['matchr'\]"):
         run_sfm(noise_frames, out, {"matchr": "exhaustive"})
     with pytest.raises(ValueError, match=r"sfm\.matcher"):
         run_sfm(noise_frames, out, {"matcher": "vocab"})

@@ -19,6 +19,7 @@ from typing import Any
 import numpy as np
 import open3d as o3d
 
+from evdense.config import section_from_dict
 from evdense.evaluate.align import align_trajectory_to_gt, apply_sim3
 from evdense.evaluate.geometry import (
     bbox_diagonal,
@@ -81,17 +82,14 @@ class EvalConfig:
 
     @classmethod
     def from_dict(cls, d: dict[str, Any] | None) -> EvalConfig:
-        d = dict(d or {})
-        unknown = set(d) - set(cls.__dataclass_fields__)
-        if unknown:
-            raise ValueError(f"evaluate: unknown keys {sorted(unknown)}")
-        conf = cls(**d)
-        if conf.completeness_reference not in ("observed", "full"):
+        return section_from_dict(cls, d, "evaluate")
+
+    def check(self) -> None:
+        if self.completeness_reference not in ("observed", "full"):
             raise ValueError(
                 "evaluate.completeness_reference: observed or full, "
-                f"not {conf.completeness_reference!r}"
+                f"not {self.completeness_reference!r}"
             )
-        return conf
 
 
 def gt_reference_samples(

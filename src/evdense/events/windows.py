@@ -29,13 +29,14 @@ from __future__ import annotations
 import os
 import re
 from collections.abc import Mapping
-from dataclasses import asdict, dataclass, fields
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
 import h5py
 import numpy as np
 
+from evdense.config import section_from_dict
 from evdense.events.container import EventFile
 from evdense.log import get_logger
 
@@ -87,14 +88,7 @@ class WindowConfig:
     @classmethod
     def from_dict(cls, d: Mapping[str, Any] | None) -> WindowConfig:
         """Build from a config mapping (``config["events"]["window"]``); unknown keys are an error."""
-        d = dict(d or {})
-        known = {f.name for f in fields(cls)}
-        unknown = set(d) - known
-        if unknown:
-            raise ValueError(
-                f"unknown window config keys {sorted(unknown)}; known: {sorted(known)}"
-            )
-        return cls(**d)
+        return section_from_dict(cls, d, "events.window")
 
 
 def _fmt(x: float) -> str:

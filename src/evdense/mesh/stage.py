@@ -7,7 +7,6 @@ Every output is written under a temporary name and renamed when complete.
 
 from __future__ import annotations
 
-import dataclasses
 import os
 import shutil
 import time
@@ -17,6 +16,7 @@ from typing import Any
 
 import numpy as np
 
+from evdense.config import section_from_dict
 from evdense.formats.cloud import read_cloud
 from evdense.formats.files import write_json_atomic
 from evdense.formats.status import SFM_FAILED, STATS_NAME, is_failed, write_empty_products
@@ -53,31 +53,7 @@ class MeshConfig:
     @classmethod
     def from_dict(cls, d: dict[str, Any] | None) -> MeshConfig:
         """Build from the config section (unknown keys raise ``ValueError`` naming them)."""
-        return _from_dict(cls, d or {}, "mesh")
-
-
-def _from_dict(cls, d: dict[str, Any], path: str):
-    if isinstance(d, cls):
-        return d
-    names = {f.name: f for f in dataclasses.fields(cls)}
-    unknown = set(d) - set(names)
-    if unknown:
-        raise ValueError(f"config section '{path}': unknown keys {sorted(unknown)}")
-    kwargs = {}
-    for k, v in d.items():
-        f = names[k]
-        default = f.default_factory() if f.default_factory is not dataclasses.MISSING else f.default
-        if dataclasses.is_dataclass(default):
-            kwargs[k] = _from_dict(type(default), v or {}, f"{path}.{k}")
-        elif isinstance(default, list):
-            kwargs[k] = [type(default[0])(x) for x in v] if default else list(v)
-        elif isinstance(default, bool):
-            kwargs[k] = bool(v)
-        elif isinstance(default, int | float):
-            kwargs[k] = type(default)(v)  # Paramspace and YAML may hand numpy or int values
-        else:
-            kwargs[k] = v
-    return cls(**kwargs)
+        return section_from_dict(cls, d, "mesh")
 
 
 def _conf(config: MeshConfig | dict | None) -> MeshConfig:

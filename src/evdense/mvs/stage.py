@@ -25,13 +25,14 @@ import shutil
 import time
 from collections import OrderedDict
 from concurrent.futures import ProcessPoolExecutor, as_completed
-from dataclasses import asdict, dataclass, field, fields
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import torch
 
+from evdense.config import section_from_dict
 from evdense.formats.cloud import write_cloud
 from evdense.formats.files import write_json_atomic
 from evdense.log import get_logger, progress
@@ -62,15 +63,6 @@ log = get_logger("mvs")
 MAP_KINDS = ("photometric", "geometric")  # the two passes, in order
 
 
-def _from_dict(cls, d: dict[str, Any] | None, where: str):
-    d = dict(d or {})
-    names = {f.name for f in fields(cls)}
-    unknown = sorted(set(d) - names)
-    if unknown:
-        raise ValueError(f"{where}: unknown keys {unknown} (known: {sorted(names)})")
-    return cls(**d)
-
-
 @dataclass
 class MVSConfig:
     """Settings of the multi-view stereo stage (the ``mvs`` config section)."""
@@ -97,22 +89,8 @@ class MVSConfig:
     @classmethod
     def from_dict(cls, d: dict[str, Any] | None) -> MVSConfig:
         """Build from the ``mvs`` config section; unknown keys raise ``ValueError`` naming them."""
-        d = dict(d or {})
-        names = {f.name for f in fields(cls)}
-        unknown = sorted(set(d) - names)
-        if unknown:
-            raise ValueError(f"mvs: unknown keys {unknown} (known: {sorted(names)})")
-        subs = {
-            "view_selection": ViewSelectionConfig,
-            "patch_match": PatchMatchConfig,
-            "filter": FilterConfig,
-            "fusion": FusionConfig,
-        }
-        kw = {k: _from_dict(c, d.pop(k, None), f"mvs.{k}") for k, c in subs.items()}
-        vs = kw["view_selection"]
-        vs.depth_percentiles = tuple(vs.depth_percentiles)
-        cfg = cls(**kw, **d)
-        cfg.check()
+        cfg = section_from_dict(cls, d, "mvs")
+        cfg.view_selection.depth_percentiles = tuple(cfg.view_selection.depth_percentiles)
         return cfg
 
     def check(self) -> None:

@@ -6,8 +6,10 @@ builds the job graph without importing torch.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 from typing import Any
+
+from evdense.config import section_from_dict
 
 BASELINES = ("highpass", "integrate")
 
@@ -63,11 +65,7 @@ class ReconstructConfig:
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> ReconstructConfig:
         """Build from a flat dict of the fields above; unknown keys raise ``ValueError``."""
-        known = {f.name for f in fields(cls)}
-        unknown = sorted(set(d) - known)
-        if unknown:
-            raise ValueError(f"unknown reconstruct option(s): {', '.join(unknown)}")
-        return cls(**d)
+        return section_from_dict(cls, d, "reconstruct")
 
     @property
     def is_baseline(self) -> bool:

@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
+
+from evdense.config import section_from_dict
 
 SELECT_METHODS = ("all", "every_k", "count", "change")
 MATCHERS = ("exhaustive", "sequential")
@@ -75,16 +77,7 @@ class SfmConfig:
     @classmethod
     def from_dict(cls, d: dict[str, Any] | None) -> SfmConfig:
         """Build from a config section; unknown keys raise ``ValueError`` naming them."""
-        d = dict(d or {})
-        known = {f.name for f in fields(cls)}
-        unknown = sorted(set(d) - known)
-        if unknown:
-            raise ValueError(
-                f"config section 'sfm': unknown key(s) {unknown}; known: {sorted(known)}"
-            )
-        cfg = cls(**d)
-        cfg.check()
-        return cfg
+        return section_from_dict(cls, d, "sfm")
 
     @property
     def calibration_file(self) -> str | None:

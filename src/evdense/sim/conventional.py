@@ -19,13 +19,14 @@ import json
 import math
 import os
 import shutil
-from dataclasses import asdict, dataclass, fields
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
 import imageio.v3 as iio
 import numpy as np
 
+from evdense.config import section_from_dict
 from evdense.formats.frames import frame_name, write_timestamps
 from evdense.log import get_logger, progress
 from evdense.sim.esim import RadianceFn
@@ -72,17 +73,9 @@ class ConventionalCameraConfig:
 
     @classmethod
     def from_dict(cls, d: dict[str, Any] | None) -> ConventionalCameraConfig:
-        """Build from a config section; missing keys take the defaults, unknown keys raise ``ValueError``."""
-        d = dict(d or {})
-        names = {f.name for f in fields(cls)}
-        unknown = sorted(set(d) - names)
-        if unknown:
-            raise ValueError(
-                f"simulator.conventional_camera: unknown keys {unknown} (known: {sorted(names)})"
-            )
-        conf = cls(**{k: v for k, v in d.items() if v is not None or k == "exposure_fraction"})
-        conf.validate()
-        return conf
+        """Build from a config section; missing (or null) keys take the defaults (a null
+        ``exposure_fraction`` is its default: use ``exposure_s``), unknown keys raise ``ValueError``."""
+        return section_from_dict(cls, d, "simulator.conventional_camera", drop_none=True)
 
     @property
     def exposure(self) -> float:
@@ -91,7 +84,7 @@ class ConventionalCameraConfig:
             return self.exposure_fraction / self.fps
         return self.exposure_s
 
-    def validate(self) -> None:
+    def check(self) -> None:
         """Raise ``ValueError`` naming the key when a value is out of range."""
         p = "simulator.conventional_camera."
         if not self.fps > 0:

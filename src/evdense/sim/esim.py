@@ -23,12 +23,13 @@ over "k-th crossing within one step" (needed for the refractory period, usually 
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, fields
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from evdense.config import section_from_dict
 from evdense.events.container import Events, EventWriter
 from evdense.log import get_logger
 
@@ -75,19 +76,11 @@ class EventCameraConfig:
 
     @classmethod
     def from_dict(cls, d: dict[str, Any] | None) -> EventCameraConfig:
-        """Build from a config section; missing keys take the defaults, unknown keys raise ``ValueError``."""
-        d = dict(d or {})
-        names = {f.name for f in fields(cls)}
-        unknown = sorted(set(d) - names)
-        if unknown:
-            raise ValueError(
-                f"simulator.event_camera: unknown keys {unknown} (known: {sorted(names)})"
-            )
-        conf = cls(**{k: v for k, v in d.items() if v is not None})
-        conf.validate()
-        return conf
+        """Build from a config section; missing (or null) keys take the defaults, unknown keys
+        raise ``ValueError``."""
+        return section_from_dict(cls, d, "simulator.event_camera", drop_none=True)
 
-    def validate(self) -> None:
+    def check(self) -> None:
         """Raise ``ValueError`` naming the key when a value is out of range."""
         pos = {
             "contrast_pos": self.contrast_pos,

@@ -23,13 +23,14 @@ from __future__ import annotations
 import json
 import math
 import time
-from dataclasses import asdict, dataclass, field, fields
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import torch
 
+from evdense.config import section_from_dict
 from evdense.formats.files import write_atomic, write_text_atomic
 from evdense.log import get_logger
 from evdense.recon.checkpoints import load_checkpoint, save_checkpoint
@@ -118,22 +119,15 @@ class TrainConfig:
     @classmethod
     def from_dict(cls, d: dict[str, Any] | None) -> TrainConfig:
         """Build from the ``train`` config section; unknown keys raise ``ValueError``."""
-        d = dict(d or {})
-        data = d.pop("data", None) or {}
-        known = {f.name for f in fields(cls)}
-        bad = sorted(set(d) - known)
-        dknown = {f.name for f in fields(TrainDataConfig)}
-        bad += [f"data.{k}" for k in sorted(set(data) - dknown)]
-        if bad:
-            raise ValueError(f"train: unknown option(s) {', '.join(bad)}")
-        conf = cls(**d, data=TrainDataConfig(**data))
-        if conf.sequence_length % conf.tbptt_length:
+        return section_from_dict(cls, d, "train")
+
+    def check(self) -> None:
+        if self.sequence_length % self.tbptt_length:
             raise ValueError("train.sequence_length must be a multiple of train.tbptt_length")
-        if conf.sequence_length > conf.data.windows_per_sequence:
+        if self.sequence_length > self.data.windows_per_sequence:
             raise ValueError("train.sequence_length exceeds train.data.windows_per_sequence")
-        if conf.crop_size > min(conf.data.width, conf.data.height):
+        if self.crop_size > min(self.data.width, self.data.height):
             raise ValueError("train.crop_size exceeds the simulated camera size")
-        return conf
 
     def splits(self) -> dict[str, int]:
         """Split name -> number of sequences to simulate."""
