@@ -235,13 +235,6 @@ def make_dataset_figures(
     return made
 
 
-def _views_for(L: Loaded, gt: Path | None, camera: Camera) -> dict[str, tuple[Camera, np.ndarray]]:
-    if gt is not None and (gt / "trajectory.txt").is_file() and L.transform is not None:
-        t, T = read_tum(gt / "trajectory.txt")
-        return viewpoints(t, T, camera)
-    return viewpoints(L.t_cam, L.T_cam, camera)
-
-
 def _reconstructions(dataset, out_dir, sources, loaded, gt, gt_mesh, camera, conf) -> list[Path]:
     """Figs. 8-9: the textured refined mesh and the dense cloud of each source, same viewpoints."""
     from evdense.evaluate.rendering import render_mesh, render_points, render_textured
@@ -254,7 +247,11 @@ def _reconstructions(dataset, out_dir, sources, loaded, gt, gt_mesh, camera, con
         gt_views = viewpoints(t, T, camera)
     for name, files in sources.items():
         L = loaded[name]
-        views = gt_views if (gt_views and L.transform is not None) else _views_for(L, None, camera)
+        views = (
+            gt_views
+            if (gt_views and L.transform is not None)
+            else viewpoints(L.t_cam, L.T_cam, camera)
+        )
         f_mesh = _f_label(L.metrics, "refined", conf.default_threshold)
         f_dense = _f_label(L.metrics, "dense", conf.default_threshold)
         panels: list[tuple[str, np.ndarray | None]] = []

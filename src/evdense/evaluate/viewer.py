@@ -19,7 +19,7 @@ import numpy as np
 
 from evdense.formats.files import write_text_atomic
 from evdense.log import get_logger
-from evdense.mesh.texture import TexturedMesh, read_textured_mesh
+from evdense.mesh.texture import TexturedMesh
 
 log = get_logger("viewer")
 
@@ -123,12 +123,3 @@ panels in one frame turn together.</div></header>
         out_html, len(meshes), sum(m["faces"] for m in meshes), len(page) / 1e6,
     )  # fmt: skip
     return out_html
-
-
-def read_mesh_for_page(obj_path: str | Path, transform: np.ndarray | None = None) -> TexturedMesh:
-    """Read a textured OBJ and move it by a 4x4 similarity (``None``: as it is)."""
-    tm = read_textured_mesh(obj_path)
-    if transform is not None:
-        T = np.asarray(transform, dtype=np.float64)
-        tm.vertices = tm.vertices @ T[:3, :3].T + T[:3, 3]
-    return tm
