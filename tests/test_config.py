@@ -56,75 +56,32 @@ def test_default_config_file_validates_to_itself_twice():
     assert json.dumps(once) == json.dumps(twice)
 
 
-# Every config section and the dataclass that reads it: the schema documents the keys, the
-# dataclass holds them; this one test keeps the two in step (keys, defaults, descriptions).
-SECTIONS = {
-    "simulator.render": "evdense.sim.render:RenderConfig",
-    "simulator.event_camera": "evdense.sim.esim:EventCameraConfig",
-    "simulator.conventional_camera": "evdense.sim.conventional:ConventionalCameraConfig",
-    "ingest": "evdense.io.ingest:IngestConfig",
-    "events.window": "evdense.events.windows:WindowConfig",
-    "events.voxel": "evdense.events.voxel:VoxelConfig",
-    "events.summary": "evdense.events.summary:SummaryConfig",
-    "reconstruct": "evdense.recon.config:ReconstructConfig",
-    "mvs": "evdense.mvs.stage:MVSConfig",
-    "mvs.oracle": "evdense.mvs.oracle:OracleConfig",
-    "sfm": "evdense.sfm:SfmConfig",
-    "evaluate": "evdense.evaluate.stage:EvalConfig",
-    "mesh": "evdense.mesh.stage:MeshConfig",
-    "train": "evdense.training.train:TrainConfig",
-}
+def test_the_schema_says_what_the_dataclasses_say():
+    """Keys, defaults and descriptions of every dataclass-backed section: written once, in the
+    dataclasses, copied into the schema by ``python -m evdense.config_schema --write``."""
+    from evdense.config_schema import sync_schema
+
+    assert sync_schema(load_schema()) == []
 
 
-# Keys on one side only, on purpose: (schema only, dataclass only).
-ONE_SIDED = {
-    # the workflow's list of sources and the recipes they name; each source's ReconstructConfig
-    # gets one method and one checkpoint from them
-    "reconstruct": ({"methods", "presets", "checkpoints"}, {"method", "checkpoint"}),
-    # the threshold of the oracle's evaluation, an argument of evaluate_mvs
-    "mvs.oracle": ({"threshold"}, set()),
-}
+def test_a_stale_schema_is_found_and_rewritten():
+    from evdense.config_schema import dump_schema, sync_schema
 
+    schema = load_schema()
+    window = schema["properties"]["events"]["properties"]["window"]["properties"]
+    window["num_events"]["default"] = 1
+    window["mode"]["description"] = "old words"
+    assert sorted(sync_schema(schema)) == ["events.window.mode: description",
+                                           "events.window.num_events: default"]  # fmt: skip
+    assert window["num_events"]["default"] == 25000
+    # what --write produces reads back to the same schema
+    import yaml
 
-def _plain(v):
-    """Defaults compared as JSON sees them (tuples are lists)."""
-    return json.loads(json.dumps(v, default=list))
-
-
-@pytest.mark.parametrize("path", sorted(SECTIONS))
-def test_every_section_agrees_with_its_dataclass(path):
-    import dataclasses
-    import importlib
-
-    module, name = SECTIONS[path].split(":")
-    cls = getattr(importlib.import_module(module), name)
-    props = load_schema()
-    defaults = validate_config({})
-    for part in path.split("."):
-        props = props["properties"][part]
-        defaults = defaults[part]
-
-    def check(cls, props, defaults, where):
-        fields = {f.name: f for f in dataclasses.fields(cls)}
-        inst = cls()
-        keys = set(props["properties"]) - {k for k in SECTIONS if k.startswith(f"{where}.")}
-        keys = {k for k in keys if f"{where}.{k}" not in SECTIONS}
-        schema_only, class_only = ONE_SIDED.get(where, (set(), set()))
-        assert keys - schema_only == set(fields) - class_only, (
-            f"{where}: schema only {keys - set(fields)}, dataclass only {set(fields) - keys}"
-        )
-        keys -= schema_only
-        for k in keys:
-            assert props["properties"][k].get("description"), f"{where}.{k}: no description"
-            value = getattr(inst, k)
-            if dataclasses.is_dataclass(value):
-                check(type(value), props["properties"][k], defaults[k], f"{where}.{k}")
-            else:
-                assert _plain(defaults[k]) == _plain(value), (
-                    f"{where}.{k}: schema {defaults[k]!r}, dataclass {value!r}"
-                )
-
-    check(cls, props, defaults, path)
+    assert sync_schema(yaml.safe_load(dump_schema(schema))) == []
+    # a key on one side only needs a person
+    del window["overlap"]
+    with pytest.raises(ValueError, match=r"events\.window: .*WindowConfig only \['overlap'\]"):
+        sync_schema(schema)
 
 
 def test_scenes_are_built_when_the_workflow_passes_the_builder(tmp_path):

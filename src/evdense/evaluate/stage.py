@@ -43,7 +43,8 @@ class EvalConfig:
     """Settings of the evaluation (config section ``evaluate``)."""
 
     relative_thresholds: list[float] = field(default_factory=lambda: [0.0025, 0.005, 0.01, 0.02])
-    """Distance thresholds as fractions of the GT bounding-box diagonal."""
+    """Distance thresholds of precision, recall and F-score, as fractions of the GT bounding-box
+    diagonal."""
     default_threshold: float = 0.01
     """The threshold (one of the above) reported as *the* F-score in tables and plots."""
     curve_thresholds: list[float] = field(
@@ -54,12 +55,15 @@ class EvalConfig:
     num_samples: int = 200_000
     """GT surface samples for completeness (and samples of each reconstructed mesh)."""
     completeness_reference: str = "observed"
-    """GT surface that completeness (recall) is measured on: ``observed`` (the part seen by the GT
-    cameras along the whole trajectory, the same for every image source) or ``full`` (all of it)."""
+    """GT surface that completeness (recall) is measured on: observed (the part seen by at least
+    visibility_min_views of visibility_views GT cameras spread along the whole trajectory, the same
+    for every image source of a dataset) or full (the whole GT mesh, walls never looked at
+    included)."""
     visibility_views: int = 60
     """GT cameras, evenly spaced in time along the trajectory, that define the observed surface."""
     visibility_min_views: int = 2
-    """A GT surface point counts as observed when at least this many of those cameras see it."""
+    """A GT surface point is observed when at least this many of those cameras see it (unoccluded,
+    in the image)."""
     crop_margin: float = 0.02
     """Reconstructions are cropped to the GT bounding box grown by this fraction of its diagonal."""
     icp: bool = True
@@ -70,9 +74,11 @@ class EvalConfig:
     """ICP runs on a random subset of at most this many cloud points (0 = all): an event-frame
     cloud of 1.7 M points took 53 s in ICP alone, for a transform a subset fixes as well."""
     image_mode: str = "histogram"
-    """How frames meet GT radiance before MSE/PSNR/SSIM (see ``evaluate.images.compare_to_gt``)."""
+    """How frames (of any tone curve) meet GT radiance before MSE, PSNR and SSIM: histogram (GT
+    log-mapped to [0, 1], the frame's grey levels matched to its histogram: structure is compared,
+    not tone curve) or percentile (each rescaled by its 1st-99th percentiles)."""
     max_image_frames: int = 60
-    """At most this many frames (evenly spaced) are compared with GT intensity."""
+    """At most this many frames (evenly spaced) of a source are compared with GT intensity."""
     heldout_views: int = 10
     """Renders of the textured mesh from this many held-out GT cameras (midway between GT frame
     times, which no conventional or GT frame uses) are compared with GT images."""

@@ -48,18 +48,21 @@ class VoxelConfig:
     """How windows of events become voxel grids and how they are stored."""
 
     bins: int = 5
-    """Temporal bins B of a voxel grid (E2VID and FireNet use 5)."""
+    """Temporal bins B of a voxel grid (the default in file names voxels_<spec>_b<B>.h5)."""
     dtype: str = "float32"
     """Stored value type, ``float32`` or ``float16`` (half the disk, about 3 significant digits)."""
     compression: str = "blosc-lz4"
-    """HDF5 compression of the stored grids (``blosc-lz4``, ``zstd``, ``lzf``, ``gzip`` or ``none``)."""
+    """HDF5 compression of the grids (blosc-lz4 fastest, zstd smaller, lzf/gzip readable without
+    hdf5plugin, none)."""
     read_block_events: int = 1 << 22
-    """Events read from the event file at a time; bounds memory (13 bytes per event)."""
+    """Events read from the event file at a time (13 bytes each); bounds the memory of the stage."""
     hot_pixel_factor: float = 10.0
-    """Hot-pixel filter: a pixel that fired, over the whole recording, more than this many times
-    the second largest count of its 8 neighbours (taken as at least 1) is masked, zero in every grid;
-    0 = keep every pixel. A real sensor's hot pixels fire hundreds of times where their
-    neighbours fire a few; the network renders each as a dot that spreads into a ring."""
+    """Hot-pixel filter: a pixel that fired, over the whole recording, more than this many times the
+    second largest count of its 8 neighbours (at least 1) is masked (zero in every grid; listed in
+    the voxel file's hot_pixels); 0 = off. A real sensor's hot pixels fire hundreds of times where
+    their neighbours fire a few (66 of them in the DVXplorer sample), and the network renders each
+    as a dot that spreads into a ring. The highpass and integrate baselines read the events
+    themselves, unfiltered."""
     hot_pixel_min_ratio: float = 3.0
     """...and only if its count also exceeds this many times the mean count of the pixels that
     fired (so that a quiet recording's scattered events are not taken for hot pixels)."""

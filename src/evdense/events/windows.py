@@ -65,7 +65,8 @@ class WindowConfig:
     """How a stream of events is cut into windows (one reconstructed frame per window)."""
 
     mode: str = "events"
-    """``events`` (fixed count), ``time`` (fixed duration) or ``events_capped`` (count capped by duration)."""
+    """events = a fixed number of events per window (E2VID's default); time = a fixed duration;
+    events_capped = a fixed number of events, ended early at max_duration_ms."""
     num_events: int = 25000
     """Events per window in the ``events`` modes (25000 is about 0.3 events per pixel at 346x260)."""
     duration_ms: float = 50.0
@@ -73,7 +74,8 @@ class WindowConfig:
     max_duration_ms: float = 100.0
     """Longest window in milliseconds in ``events_capped`` mode."""
     overlap: float = 0.0
-    """Fraction of a window shared with the next one, in [0, 1); 0 partitions the stream."""
+    """Fraction of a window shared with the next one; 0 partitions the stream (each event in one
+    window)."""
 
     def __post_init__(self) -> None:
         if self.mode not in MODES:

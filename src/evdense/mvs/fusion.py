@@ -39,12 +39,13 @@ class FusionConfig:
     """Settings of the fusion of depth maps into one point cloud."""
 
     method: str = "voxel"
-    """voxel (ours: back-projection and voxel merge) or colmap (pycolmap.stereo_fusion)."""
+    """voxel (ours - back-projection and per-voxel mean, with visibility) or colmap
+    (pycolmap.stereo_fusion, CPU)."""
     voxel_size: float = 0.0
     """Voxel edge (model units, metres for GT poses); 0 = ``voxel_size_px`` times the median
     footprint of a pixel at the median depth."""
     voxel_size_px: float = 1.0
-    """Automatic voxel size, in pixel footprints."""
+    """Automatic voxel size, in pixel footprints at the median depth."""
     min_views: int = 1
     """Voxels seen by fewer views are dropped."""
     outlier_neighbors: int = 16

@@ -112,7 +112,8 @@ class PatchMatchConfig:
     sigma_color: float = 0.1
     """Intensity sigma of the bilateral window weights (grey levels in [0, 1])."""
     min_texture_std: float = 0.004
-    """Pixels whose (weighted) window standard deviation is below this are left unmatched."""
+    """Pixels whose weighted window standard deviation (grey levels in [0, 1]) is below this are
+    left unmatched."""
     num_best_views: int = 0
     """Number of best per-view costs averaged per pixel; 0 = half the source views (at least 1)."""
     propagation_distances: list[int] = field(default_factory=lambda: [1, 3, 5])
@@ -136,7 +137,7 @@ class PatchMatchConfig:
     chunk_size: int = 0
     """Pixels evaluated at once; 0 = 2048 on the CPU (cache-sized), 262144 on CUDA."""
     seed: int = 0
-    """Seed of the random initialisation and perturbations."""
+    """Seed of the random initialisation and perturbations (plus the view index)."""
 
     def check(self) -> None:
         if not self.iterations or any(int(i) < 0 for i in self.iterations):

@@ -68,15 +68,17 @@ class MVSConfig:
     """Settings of the multi-view stereo stage (the ``mvs`` config section)."""
 
     view_selection: ViewSelectionConfig = field(default_factory=ViewSelectionConfig)
-    """Source views and depth ranges from the sparse model."""
+    """Source views and depth range of each reference view, from the sparse points."""
     patch_match: PatchMatchConfig = field(default_factory=PatchMatchConfig)
-    """PatchMatch depth and normal estimation."""
+    """PatchMatch depth and normal estimation (Bleyer et al. 2011; Schoenberger et al. 2016)."""
     filter: FilterConfig = field(default_factory=FilterConfig)
-    """Which depth-map pixels are kept."""
+    """Which depth-map pixels are kept (the others get depth 0)."""
     fusion: FusionConfig = field(default_factory=FusionConfig)
-    """Fusion of the kept pixels into one point cloud."""
+    """Fusion of the kept depth-map pixels into one point cloud, then statistical outlier
+    removal."""
     geometric: bool = True
-    """Run the geometric-consistency iterations (else the photometric maps are only filtered)."""
+    """Run the geometric-consistency PatchMatch iterations (cost + forward-backward reprojection
+    error against the source views' maps); false = only filter the photometric maps."""
     max_image_size: int = -1
     """Undistorted images larger than this (pixels, longer side) are downsized; -1 = keep."""
     device: str = "auto"

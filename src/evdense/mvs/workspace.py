@@ -247,7 +247,8 @@ class ViewSelectionConfig:
     min_angle: float = 1.0
     """Shared points whose triangulation angle is below this (degrees) do not count."""
     optimal_angle: float = 5.0
-    """A shared point's weight grows with its triangulation angle up to this angle (degrees)."""
+    """A shared point's weight grows as (angle / optimal_angle)^2 up to this angle (degrees);
+    smaller favours nearer views."""
     max_angle: float = 60.0
     """Shared points whose triangulation angle exceeds this (degrees) do not count."""
     coverage_decay: float = 0.5

@@ -20,7 +20,9 @@ class SfmConfig:
     """Settings of structure from motion (the ``sfm`` config section)."""
 
     select: str = "count"
-    """Frame selection before matching: all, every_k, count (evenly spaced) or change (image change)."""
+    """Frames given to SfM: all, every_k (every select_every_k-th), count (select_count evenly
+    spaced) or change (a new frame when the image changed by select_min_change). The first and last
+    frames are always kept; the list is written to selected_frames.txt."""
     select_every_k: int = 1
     """select=every_k: keep every k-th frame (the last frame is always kept)."""
     select_count: int = 60
@@ -34,12 +36,15 @@ class SfmConfig:
     camera_model: str = "SIMPLE_RADIAL"
     """COLMAP camera model estimated when no calibration is given (one camera shared by all frames)."""
     calibration: str | None = "auto"
-    """Calibration file (our YAML, VINS YAML, COLMAP cameras.txt); rescaled to the frame size when
-    the aspect ratio matches. None: intrinsics are estimated. ``auto``: the workflow gives a
-    recording's own calibration when it carries one (or its dataset names one) and estimates
-    otherwise (synthetic scenes); called directly, ``auto`` estimates."""
+    """Intrinsics from a file instead of estimating them: a path (our YAML, VINS YAML, COLMAP
+    cameras.txt); `dataset` for the dataset's own (a recording's calibration, gt/intrinsics.yaml for
+    a synthetic scene); `auto` (default) for a recording's own calibration when it carries one or
+    its dataset names one, and estimated intrinsics otherwise (synthetic scenes, recordings without
+    calibration); null to always estimate. Rescaled to the frame size when the aspect ratio
+    matches."""
     refine_intrinsics: bool = False
-    """With a calibration: refine focal length and distortion in bundle adjustment (else fixed)."""
+    """With a calibration, refine focal length and distortion in bundle adjustment (false keeps them
+    fixed)."""
     matcher: str = "exhaustive"
     """exhaustive (all pairs, as in the method) or sequential (neighbours in time, for long sequences)."""
     loop_closure: bool = True
@@ -50,29 +55,35 @@ class SfmConfig:
     device: str = "auto"
     """SIFT extraction and matching device: auto (CUDA when pycolmap was built with it), cpu, cuda."""
     num_threads: int = -1
-    """CPU threads for extraction, matching and mapping (-1: all cores)."""
+    """CPU threads when the stage runs outside Snakemake (-1 = all cores); the rule passes its
+    `threads`."""
     seed: int = 0
     """Random seed of RANSAC and the mapper (pycolmap.set_random_seed)."""
     min_registered_fraction: float = 0.25
-    """Fewer registered frames than this fraction of the selected ones is an error (SfmError)."""
+    """Fewer registered frames than this fraction of the selected ones is an error (with a
+    diagnostics JSON)."""
     min_registered_images: int = 3
     """Fewer registered frames than this is an error (SfmError)."""
     colmap_log_level: str = "WARNING"
     """Lowest level of COLMAP's own log lines (INFO, WARNING, ERROR); they go to stderr."""
     on_failure: str = "record"
-    """What the workflow does when too few frames register: error (stop with the diagnostics), or
-    record (write an output folder marked failed, so that a sweep goes on and the failure is
-    scored: no trajectory, no points)."""
+    """When too few frames register: error (the job fails, with a diagnostics JSON), or record (the
+    output folder is marked failed and the sweep goes on; MVS, meshing and evaluation then record an
+    empty result, scored as F-score 0)."""
     extraction: dict[str, Any] = field(default_factory=dict)
-    """Attributes of pycolmap.FeatureExtractionOptions (e.g. {sift: {max_num_features: 4096}})."""
+    """Attributes of pycolmap.FeatureExtractionOptions, nested dicts for sub-options (e.g. {sift:
+    {peak_threshold: 0.004}})."""
     matching: dict[str, Any] = field(default_factory=dict)
     """Attributes of pycolmap.FeatureMatchingOptions (e.g. {sift: {max_ratio: 0.8}, guided_matching: true})."""
     verification: dict[str, Any] = field(default_factory=dict)
-    """Attributes of pycolmap.TwoViewGeometryOptions (RANSAC geometric verification, e.g. {ransac: {max_error: 4}})."""
+    """Attributes of pycolmap.TwoViewGeometryOptions, the RANSAC geometric verification (e.g.
+    {min_num_inliers: 15, ransac: {max_error: 4.0}})."""
     pairing: dict[str, Any] = field(default_factory=dict)
-    """Attributes of pycolmap.ExhaustivePairingOptions or SequentialPairingOptions (e.g. {overlap: 10})."""
+    """Attributes of pycolmap.ExhaustivePairingOptions or SequentialPairingOptions, by matcher (e.g.
+    {overlap: 10})."""
     mapping: dict[str, Any] = field(default_factory=dict)
-    """Attributes of pycolmap.IncrementalPipelineOptions (e.g. {mapper: {init_min_tri_angle: 8}})."""
+    """Attributes of pycolmap.IncrementalPipelineOptions, incremental mapping and bundle adjustment
+    (e.g. {mapper: {init_min_tri_angle: 8}})."""
 
     @classmethod
     def from_dict(cls, d: dict[str, Any] | None) -> SfmConfig:

@@ -39,24 +39,28 @@ class RenderConfig:
     supersample: int = 1
     """Rays per pixel along each axis; the radiance of the ``s x s`` rays is averaged (1 = one ray)."""
     lod_bias: float = 0.0
-    """Added to the mip level (log2 texels): > 0 blurs textures more, < 0 sharpens (and aliases)."""
+    """Added to the mip level (log2 texels per pixel); > 0 blurs textures more, < 0 sharpens them
+    (and aliases)."""
     max_anisotropy: float = 8.0
-    """Cap on ``1 / |cos(theta)|`` in the footprint, so grazing surfaces are not blurred without bound."""
+    """Cap on 1/|cos(angle between ray and surface normal)| in the pixel footprint, so grazing
+    surfaces are not blurred without bound."""
     radiance_floor: float = 1e-3
-    """Smallest radiance returned (relative units; ordinary surfaces are ~0.05 to 1), so log is finite."""
+    """Smallest radiance a render returns (relative units; ordinary surfaces are about 0.05 to 1),
+    so its log is finite."""
     camera: dict = field(default_factory=dict)
-    """Intrinsics: empty = DAVIS346 (346x260, f = 250 px); else all of width, height, fx, fy, cx, cy
-    (pixels), and optionally k1, k2, p1, p2 (OpenCV radial-tangential distortion, also alone on top of
-    the DAVIS346 default)."""
+    """Intrinsics of the simulated sensor (pixels). Empty = DAVIS346 (346x260, fx = fy = 250). Give
+    all of width, height, fx, fy, cx, cy or none of them; k1, k2, p1, p2 (OpenCV radial-tangential
+    distortion) may be given alone, on top of the DAVIS346 default."""
     gt_pose_rate_hz: float = 200.0
     """Sampling rate of the ground-truth trajectory file ``gt/trajectory.txt``, Hz."""
     gt_tonemap_percentiles: list[float] = field(default_factory=lambda: [0.1, 99.9])
-    """Percentiles of log radiance (over all GT frames of a dataset) mapped to 0 and 255 in GT PNGs."""
+    """Percentiles of radiance (over all GT frames of a dataset) mapped to 0 and 255 by the log tone
+    curve of the GT PNGs."""
     gt_min_frames: int = 60
-    """Fewest GT frames (the oracle's images): GT frames are rendered at the conventional camera's
-    times, or at this many evenly spaced times when the conventional camera takes fewer (fast
-    motion), so that the oracle never sees fewer images than the event frames give SfM (0 = always
-    the conventional times)."""
+    """Fewest GT frames (the oracle's images). GT frames are rendered at the conventional camera's
+    frame times, or at this many evenly spaced times over the recording when the conventional camera
+    takes fewer (fast motion), so that the oracle never has fewer images than the event frames give
+    SfM. 0 = always at the conventional camera's times."""
 
     @classmethod
     def from_dict(cls, d: dict) -> RenderConfig:

@@ -95,7 +95,8 @@ class TrainDataConfig:
     heldout_windows_per_sequence: int = 32
     """Windows of N events per held-out sequence."""
     planar_fraction: float = 0.7
-    """Fraction of train/val sequences from the planar generator (:mod:`evdense.training.planar`); the rest are 3D scenes."""
+    """Fraction of train/val sequences from the planar generator (textured layers sliding over each
+    other, src/evdense/training/planar.py); the rest are 3D scenes."""
     events_per_pixel: list[float] = field(default_factory=lambda: [0.15, 0.8])
     """Range [lo, hi] of events per pixel in a window (N = value x width x height), drawn log-uniform per sequence."""
     heldout_events_per_pixel: float = 0.3

@@ -87,9 +87,11 @@ class TrainConfig:
     loss_temporal: float = 0.2
     """Weight of the temporal-consistency loss."""
     loss_affine_invariant: bool = False
-    """L1, SSIM and temporal terms after each frame's least-squares gain and offset onto its target."""
+    """L1, SSIM and temporal terms after each frame's least-squares gain and offset onto its target
+    (events fix intensity only up to those; the metric and SfM ignore them)."""
     loss_anchor: float = 0.0
-    """Weight of a plain L1 on the raw output (keeps it in [0, 1] with ``loss_affine_invariant``)."""
+    """Weight of a plain L1 on the raw output, which keeps it in the [0, 1] range of the targets
+    when loss_affine_invariant is on."""
     augment: bool = True
     """Random flips, quarter turns and polarity inversions."""
     augment_rotations: bool = True
@@ -114,7 +116,7 @@ class TrainConfig:
     """Start from these weights (ours or a published FireNet of the same shape) instead of a random
     initialisation: a fine-tune, with its own warm-up and cosine schedule ("" = random start)."""
     data: TrainDataConfig = field(default_factory=TrainDataConfig)
-    """Recipe of the simulated data (``train.data``)."""
+    """Recipe of the simulated training set (src/evdense/training/data.py)."""
 
     @classmethod
     def from_dict(cls, d: dict[str, Any] | None) -> TrainConfig:
