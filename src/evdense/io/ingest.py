@@ -28,6 +28,7 @@ from typing import Any, Literal
 import numpy as np
 
 from evdense.camera import Camera, load_camera
+from evdense.config import section_from_dict
 from evdense.errors import as_input_error
 from evdense.events.container import EventWriter
 from evdense.formats.files import write_atomic
@@ -74,9 +75,8 @@ class IngestConfig:
 
     @classmethod
     def from_dict(cls, d: dict[str, Any] | None) -> IngestConfig:
-        """Build from the config section, ignoring keys that belong to other code."""
-        d = d or {}
-        return cls(**{k: v for k, v in d.items() if k in cls.__dataclass_fields__})
+        """Build from the ``ingest`` section; unknown keys are an error naming them."""
+        return section_from_dict(cls, d, "ingest")
 
     def validation(self) -> ValidationConfig:
         return ValidationConfig(

@@ -10,12 +10,14 @@ flicker that would fire spurious events when the camera moves.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, fields
-from typing import TYPE_CHECKING
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from evdense.camera import Camera, davis346
+from evdense.config import section_from_dict
 from evdense.sim.textures import TextureAtlas
 
 if TYPE_CHECKING:
@@ -63,14 +65,14 @@ class RenderConfig:
     SfM. 0 = always at the conventional camera's times."""
 
     @classmethod
-    def from_dict(cls, d: dict) -> RenderConfig:
-        """Validate ``simulator.render`` (missing keys take defaults); ``ValueError`` names bad keys."""
-        names = {f.name for f in fields(cls)}
-        for k in d:
-            if k not in names:
-                raise ValueError(f"simulator.render.{k}: unknown key (known: {sorted(names)})")
-        conf = cls(**{k: v for k, v in d.items() if v is not None})
-        key = "simulator.render"
+    def from_dict(cls, d: Mapping[str, Any] | None) -> RenderConfig:
+        """Build from ``simulator.render`` (missing or null keys take defaults); ``ValueError``
+        names a bad key."""
+        return section_from_dict(cls, d, "simulator.render", drop_none=True)
+
+    def check(self) -> None:
+        """Raise ``ValueError`` naming the first key out of range; normalises the percentiles."""
+        conf, key = self, "simulator.render"
         if (
             isinstance(conf.supersample, bool)
             or not isinstance(conf.supersample, int)
@@ -95,7 +97,6 @@ class RenderConfig:
         if isinstance(m, bool) or not isinstance(m, int) or m < 0:
             raise ValueError(f"{key}.gt_min_frames: must be an integer >= 0, got {m!r}")
         conf.make_camera()  # validates the camera keys
-        return conf
 
     def make_camera(self) -> Camera:
         """The camera these settings describe."""
