@@ -9,10 +9,13 @@ add the name to the dict.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import logging
 import sys
-from collections.abc import Callable
+import typing
+from collections.abc import Callable, Sequence
 from pathlib import Path
+from typing import Any
 
 from evdense.log import get_logger, setup_logging
 
@@ -20,8 +23,34 @@ log = get_logger("cli")
 
 
 # --- convert --------------------------------------------------------------------------------------
+def _add_config_options(sub: argparse.ArgumentParser, cls: type, names: Sequence[str]) -> None:
+    """Options ``--<name>`` for fields of the config dataclass ``cls``: default, choices (from a
+    ``Literal``), type and help all from the dataclass, so that they are written once."""
+    from evdense.config_schema import field_docs
+
+    hints, docs = typing.get_type_hints(cls), field_docs(cls)
+    defaults = {f.name: f.default for f in dataclasses.fields(cls)}
+    for name in names:
+        hint = hints[name]
+        choices = typing.get_args(hint) if typing.get_origin(hint) is typing.Literal else None
+        sub.add_argument(
+            "--" + name.replace("_", "-"),
+            default=defaults[name],
+            type=None if choices else hint,
+            choices=choices,
+            help=docs[name].replace("%", "%%") + " (default: %(default)s)",
+        )
+    sub.set_defaults(_config_names=tuple(names))
+
+
+def _config_options(args: argparse.Namespace) -> dict[str, Any]:
+    """The values of the options :func:`_add_config_options` added to this subcommand."""
+    return {name: getattr(args, name) for name in args._config_names}
+
+
 def _add_convert(sub: argparse.ArgumentParser) -> None:
     from evdense.io.detect import FORMATS
+    from evdense.io.ingest import IngestConfig
 
     sub.description = (
         "Convert an event recording (RPG text, E2VID HDF5, AEDAT4, ROS 1/ROS 2 bag, Prophesee "
@@ -43,35 +72,10 @@ def _add_convert(sub: argparse.ArgumentParser) -> None:
         "--calibration",
         help="intrinsics file (YAML, Kalibr/VINS YAML, COLMAP cameras.txt, RPG calib.txt)",
     )
-    sub.add_argument(
-        "--time-unit",
-        default="auto",
-        choices=("auto", "s", "ms", "us", "ns"),
-        help="timestamp unit for text/HDF5/NumPy inputs",
-    )
-    sub.add_argument(
-        "--unsorted",
-        default="sort",
-        choices=("sort", "error"),
-        help="out-of-order timestamps: sort within the window, or fail",
-    )
-    sub.add_argument(
-        "--reorder-window-us",
-        type=int,
-        default=10_000,
-        help="how far back (us) an event may be and still be sorted",
-    )
-    sub.add_argument(
-        "--out-of-bounds",
-        default="error",
-        choices=("error", "drop"),
-        help="events outside the sensor: fail, or drop them",
-    )
-    sub.add_argument(
-        "--compression",
-        default="blosc-lz4",
-        choices=("blosc-lz4", "zstd", "gzip", "lzf", "none"),
-        help="HDF5 compression of the output (blosc-lz4: ~4 bytes/event, fastest to read)",
+    _add_config_options(
+        sub,
+        IngestConfig,
+        ("time_unit", "unsorted", "reorder_window_us", "out_of_bounds", "compression"),
     )
     sub.add_argument("--topic", help="ROS bag: the event topic (when there are several)")
     sub.add_argument(
@@ -89,13 +93,7 @@ def _add_convert(sub: argparse.ArgumentParser) -> None:
 def _run_convert(args: argparse.Namespace) -> int:
     from evdense.io.ingest import IngestConfig, ingest_recording
 
-    cfg = IngestConfig(
-        unsorted=args.unsorted,
-        reorder_window_us=args.reorder_window_us,
-        out_of_bounds=args.out_of_bounds,
-        time_unit=args.time_unit,
-        compression=args.compression,
-    )
+    cfg = IngestConfig(**_config_options(args))
     res = ingest_recording(
         args.input,
         args.output,

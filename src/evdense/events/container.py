@@ -40,6 +40,7 @@ import hdf5plugin
 import numpy as np
 
 from evdense.errors import InputError
+from evdense.formats.files import Closing, CompleteOrAbsent
 
 FORMAT_NAME = "evdense-events"
 FORMAT_VERSION = 2
@@ -105,7 +106,7 @@ class Events:
         return cls(*(np.concatenate([getattr(e, k) for e in parts]) for k in "txyp"))
 
 
-class EventWriter:
+class EventWriter(CompleteOrAbsent):
     """Append events to a new canonical file in bounded memory.
 
     Use as a context manager; the file appears under its final name only when the block exits
@@ -152,15 +153,6 @@ class EventWriter:
         self._provenance = provenance or {}
         self._attrs = attrs or {}
         self._closed = False
-
-    def __enter__(self) -> EventWriter:
-        return self
-
-    def __exit__(self, exc_type, exc, tb) -> None:
-        if exc_type is None:
-            self.close()
-        else:
-            self.abort()
 
     @property
     def num_events(self) -> int:
@@ -255,7 +247,7 @@ def write_events(
     return Path(path)
 
 
-class EventFile:
+class EventFile(Closing):
     """Read a canonical event file by index range or time range without loading all of it."""
 
     def __init__(self, path: str | Path) -> None:
@@ -307,12 +299,6 @@ class EventFile:
             raise InputError(self.path, f"damaged evdense event file ({e})") from e
         self._last_t: int | None = None
         self._last_stop = -1
-
-    def __enter__(self) -> EventFile:
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.close()
 
     def close(self) -> None:
         self._f.close()

@@ -28,6 +28,7 @@ import numpy as np
 
 from evdense.events.container import EventFile, Events, compression_options
 from evdense.events.windows import WindowConfig, read_windows, window_spec
+from evdense.formats.files import Closing
 from evdense.log import get_logger, progress
 
 log = get_logger("events.voxel")
@@ -527,7 +528,7 @@ def voxel_file_name(window: WindowConfig | Mapping[str, Any], bins: int) -> str:
     return f"voxels_{window_spec(window)}_b{int(bins)}.h5"
 
 
-class VoxelFile:
+class VoxelFile(Closing):
     """Read a voxel file written by :func:`make_voxels`, window by window or in blocks.
 
     Attributes: ``num_windows``, ``bins``, ``height``, ``width``, ``spec``, ``normalized`` (False
@@ -557,12 +558,6 @@ class VoxelFile:
         # x, y of the masked hot pixels (K, 2); files made before the filter have none
         hp = self._f.get("hot_pixels")
         self.hot_pixels = hp[()] if hp is not None else np.zeros((0, 2), np.int32)
-
-    def __enter__(self) -> VoxelFile:
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.close()
 
     def close(self) -> None:
         self._f.close()

@@ -12,7 +12,7 @@ import os
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Any
+from typing import Any, Self
 
 
 def partial_path(path: str | Path, keep_suffix: bool = False) -> Path:
@@ -66,3 +66,37 @@ def read_json(path: str | Path) -> Any:
         return json.loads(path.read_text())
     except json.JSONDecodeError as e:
         raise ValueError(f"{path}: not valid JSON ({e})") from None
+
+
+class Closing:
+    """``with Reader(...) as r:`` closes ``r`` on the way out (subclasses define ``close``)."""
+
+    def __enter__(self) -> Self:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def close(self) -> None:
+        """Release what is open (nothing by default)."""
+
+
+class CompleteOrAbsent:
+    """A writer whose product is complete or absent: leaving its ``with`` block normally calls
+    ``close()`` (which finishes the product), leaving it by an exception calls ``abort()``
+    (which deletes what was written)."""
+
+    def __enter__(self) -> Self:
+        return self
+
+    def __exit__(self, exc_type: type[BaseException] | None, *exc: object) -> None:
+        if exc_type is None:
+            self.close()
+        else:
+            self.abort()
+
+    def close(self) -> object:
+        raise NotImplementedError
+
+    def abort(self) -> None:
+        raise NotImplementedError

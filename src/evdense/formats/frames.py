@@ -22,6 +22,8 @@ from pathlib import Path
 
 import numpy as np
 
+from evdense.formats.files import CompleteOrAbsent
+
 TIMESTAMPS_NAME = "timestamps.txt"
 """The file listing a folder's frames."""
 
@@ -132,7 +134,7 @@ def write_timestamps(
     return path
 
 
-class FrameWriter:
+class FrameWriter(CompleteOrAbsent):
     """Write a frames folder (``000000.png``, ... and ``timestamps.txt``) atomically.
 
     Use as a context manager. Frames go to a temporary folder beside ``out_dir``, which is
@@ -151,15 +153,6 @@ class FrameWriter:
             )
         )
         self._times: list[float] = []
-
-    def __enter__(self) -> FrameWriter:
-        return self
-
-    def __exit__(self, exc_type, exc, tb) -> None:
-        if exc_type is None:
-            self.close()
-        else:
-            self.abort()
 
     def __len__(self) -> int:
         return len(self._times)

@@ -16,6 +16,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from evdense.camera import Camera
+from evdense.formats.files import Closing
 
 DEFAULT_CHUNK_EVENTS = 1 << 20
 
@@ -66,7 +67,7 @@ class Trajectory:
     source: str = ""
 
 
-class Recording:
+class Recording(Closing):
     """An opened recording. Subclasses set ``format`` and implement :meth:`iter_events`.
 
     ``width``/``height`` are the sensor size the file states (pixels), or None when it does not.
@@ -82,15 +83,6 @@ class Recording:
         self.width: int | None = None
         self.height: int | None = None
         self.metadata: dict[str, Any] = {}
-
-    def __enter__(self) -> Recording:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
-
-    def close(self) -> None:
-        """Release open files (no-op by default)."""
 
     def iter_events(self) -> Iterator[RawEvents]:
         """Yield batches of at most about ``chunk_events`` events, in file order."""

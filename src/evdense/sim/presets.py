@@ -17,6 +17,12 @@ def _kp(position: list[float], look_at: list[float]) -> dict:
     return {"position": position, "look_at": look_at}
 
 
+def _box(size: list[float], center: list[float], material: str, **extra: object) -> dict:
+    """A box object: ``size`` (x, y, z extents), ``center``, ``material``, and optional
+    ``rotation_deg``, ``open_faces``, ``face_materials``."""
+    return {"type": "box", "size": size, "center": center, "material": material, **extra}
+
+
 ROOM = {
     "name": "room",
     "description": "A 7 x 6 x 3 m room with five textured boxes on the floor, a poster, a bright "
@@ -76,41 +82,11 @@ ROOM = {
             "material": "wall",
             "face_materials": {"floor": "floor", "ceiling": "ceiling"},
         },
-        {
-            "type": "box",
-            "size": [1.0, 0.8, 0.9],
-            "center": [-0.8, 1.2, 0.45],
-            "rotation_deg": [0, 0, 15],
-            "material": "brick",
-        },
-        {
-            "type": "box",
-            "size": [0.5, 0.5, 0.5],
-            "center": [-0.8, 1.2, 1.15],
-            "rotation_deg": [0, 0, 40],
-            "material": "leaves",
-        },
-        {
-            "type": "box",
-            "size": [0.6, 0.6, 0.6],
-            "center": [0.6, 1.6, 0.3],
-            "rotation_deg": [0, 0, -10],
-            "material": "checker",
-        },
-        {
-            "type": "box",
-            "size": [0.5, 0.5, 1.6],
-            "center": [1.8, 0.4, 0.8],
-            "rotation_deg": [0, 0, 25],
-            "material": "leaves",
-        },
-        {
-            "type": "box",
-            "size": [0.8, 0.5, 0.4],
-            "center": [-2.2, -0.1, 0.2],
-            "rotation_deg": [0, 0, -20],
-            "material": "gravel",
-        },
+        _box([1.0, 0.8, 0.9], [-0.8, 1.2, 0.45], "brick", rotation_deg=[0, 0, 15]),
+        _box([0.5, 0.5, 0.5], [-0.8, 1.2, 1.15], "leaves", rotation_deg=[0, 0, 40]),
+        _box([0.6, 0.6, 0.6], [0.6, 1.6, 0.3], "checker", rotation_deg=[0, 0, -10]),
+        _box([0.5, 0.5, 1.6], [1.8, 0.4, 0.8], "leaves", rotation_deg=[0, 0, 25]),
+        _box([0.8, 0.5, 0.4], [-2.2, -0.1, 0.2], "gravel", rotation_deg=[0, 0, -20]),
         {
             "type": "cylinder",
             "center": [0.3, 0.6, 0.0],
@@ -218,62 +194,16 @@ DESK = {
         },
         # desk: top slab on two pedestals
         {"type": "box", "size": [1.8, 0.8, 0.05], "center": [0.0, 1.55, 0.75], "material": "wood"},
-        {
-            "type": "box",
-            "size": [0.45, 0.7, 0.725],
-            "center": [-0.62, 1.55, 0.3625],
-            "material": "wood",
-            "open_faces": ["bottom"],
-        },
-        {
-            "type": "box",
-            "size": [0.45, 0.7, 0.725],
-            "center": [0.62, 1.55, 0.3625],
-            "material": "wood",
-            "open_faces": ["bottom"],
-        },
+        _box([0.45, 0.7, 0.725], [-0.62, 1.55, 0.3625], "wood", open_faces=["bottom"]),
+        _box([0.45, 0.7, 0.725], [0.62, 1.55, 0.3625], "wood", open_faces=["bottom"]),
         # monitor: screen (front face emits), stand, foot
-        {
-            "type": "box",
-            "size": [0.62, 0.05, 0.38],
-            "center": [0.1, 1.78, 1.08],
-            "material": "plastic",
-            "face_materials": {"front": "screen"},
-        },
-        {
-            "type": "box",
-            "size": [0.08, 0.06, 0.14],
-            "center": [0.1, 1.82, 0.845],
-            "material": "plastic",
-        },
-        {
-            "type": "box",
-            "size": [0.28, 0.2, 0.02],
-            "center": [0.1, 1.8, 0.785],
-            "material": "plastic",
-        },
+        _box([0.62, 0.05, 0.38], [0.1, 1.78, 1.08], "plastic", face_materials={"front": "screen"}),
+        _box([0.08, 0.06, 0.14], [0.1, 1.82, 0.845], "plastic"),
+        _box([0.28, 0.2, 0.02], [0.1, 1.8, 0.785], "plastic"),
         # books
-        {
-            "type": "box",
-            "size": [0.32, 0.24, 0.05],
-            "center": [-0.55, 1.4, 0.8],
-            "rotation_deg": [0, 0, 8],
-            "material": "book1",
-        },
-        {
-            "type": "box",
-            "size": [0.3, 0.22, 0.05],
-            "center": [-0.55, 1.41, 0.85],
-            "rotation_deg": [0, 0, -6],
-            "material": "book2",
-        },
-        {
-            "type": "box",
-            "size": [0.28, 0.2, 0.06],
-            "center": [-0.54, 1.4, 0.905],
-            "rotation_deg": [0, 0, 14],
-            "material": "book3",
-        },
+        _box([0.32, 0.24, 0.05], [-0.55, 1.4, 0.8], "book1", rotation_deg=[0, 0, 8]),
+        _box([0.3, 0.22, 0.05], [-0.55, 1.41, 0.85], "book2", rotation_deg=[0, 0, -6]),
+        _box([0.28, 0.2, 0.06], [-0.54, 1.4, 0.905], "book3", rotation_deg=[0, 0, 14]),
         # jar and tissue box
         {
             "type": "cylinder",
@@ -282,33 +212,11 @@ DESK = {
             "height": 0.2,
             "material": "jar",
         },
-        {
-            "type": "box",
-            "size": [0.25, 0.13, 0.12],
-            "center": [-0.2, 1.3, 0.835],
-            "rotation_deg": [0, 0, -25],
-            "material": "tissue",
-        },
+        _box([0.25, 0.13, 0.12], [-0.2, 1.3, 0.835], "tissue", rotation_deg=[0, 0, -25]),
         # desk lamp: foot, post, bright shade
-        {
-            "type": "box",
-            "size": [0.16, 0.16, 0.03],
-            "center": [0.72, 1.75, 0.79],
-            "material": "plastic",
-        },
-        {
-            "type": "box",
-            "size": [0.03, 0.03, 0.36],
-            "center": [0.72, 1.75, 0.985],
-            "material": "plastic",
-        },
-        {
-            "type": "box",
-            "size": [0.22, 0.14, 0.1],
-            "center": [0.68, 1.7, 1.2],
-            "rotation_deg": [0, 0, 20],
-            "material": "shade",
-        },
+        _box([0.16, 0.16, 0.03], [0.72, 1.75, 0.79], "plastic"),
+        _box([0.03, 0.03, 0.36], [0.72, 1.75, 0.985], "plastic"),
+        _box([0.22, 0.14, 0.1], [0.68, 1.7, 1.2], "shade", rotation_deg=[0, 0, 20]),
         # picture on the wall
         {
             "type": "plane",
@@ -339,13 +247,7 @@ def _facade_objects() -> list[dict]:
             "material": "surroundings",
             "face_materials": {"floor": "street", "ceiling": "sky"},
         },
-        {
-            "type": "box",
-            "size": [16.0, 8.0, 9.5],
-            "center": [0.0, 4.0, 4.75],
-            "material": "brick",
-            "open_faces": ["bottom"],
-        },
+        _box([16.0, 8.0, 9.5], [0.0, 4.0, 4.75], "brick", open_faces=["bottom"]),
         # door with a canopy (strong parallax) and two planters
         {
             "type": "plane",
@@ -354,41 +256,12 @@ def _facade_objects() -> list[dict]:
             "normal": [0, -1, 0],
             "material": "door",
         },
-        {
-            "type": "box",
-            "size": [2.2, 1.0, 0.12],
-            "center": [0.0, -0.5, 2.5],
-            "material": "concrete",
-        },
-        {
-            "type": "box",
-            "size": [1.0, 0.6, 0.55],
-            "center": [-1.6, -0.5, 0.275],
-            "material": "concrete",
-            "open_faces": ["bottom"],
-        },
-        {
-            "type": "box",
-            "size": [1.0, 0.6, 0.55],
-            "center": [1.6, -0.5, 0.275],
-            "material": "concrete",
-            "open_faces": ["bottom"],
-        },
+        _box([2.2, 1.0, 0.12], [0.0, -0.5, 2.5], "concrete"),
+        _box([1.0, 0.6, 0.55], [-1.6, -0.5, 0.275], "concrete", open_faces=["bottom"]),
+        _box([1.0, 0.6, 0.55], [1.6, -0.5, 0.275], "concrete", open_faces=["bottom"]),
         # pilasters at the corners of the front
-        {
-            "type": "box",
-            "size": [0.6, 0.3, 9.5],
-            "center": [-6.5, -0.15, 4.75],
-            "material": "concrete",
-            "open_faces": ["bottom"],
-        },
-        {
-            "type": "box",
-            "size": [0.6, 0.3, 9.5],
-            "center": [6.5, -0.15, 4.75],
-            "material": "concrete",
-            "open_faces": ["bottom"],
-        },
+        _box([0.6, 0.3, 9.5], [-6.5, -0.15, 4.75], "concrete", open_faces=["bottom"]),
+        _box([0.6, 0.3, 9.5], [6.5, -0.15, 4.75], "concrete", open_faces=["bottom"]),
     ]
     lit = {(0, 1), (1, 3), (2, 0), (1, 4)}
     for row, zc in enumerate([2.0, 4.9, 7.8]):
