@@ -173,6 +173,12 @@ def test_polarity_encodings(tmp_path):
         ValueError, match=r"polarity -1 at event 2 \(line 3\) in a stream that uses 0/1"
     ):
         run(f, width=W, height=H)
+    f = text_file(tmp_path, ["0.000001 1 1 -1", "0.000002 2 2 1", "0.000003 2 2 0"])
+    with pytest.raises(
+        ValueError,
+        match=r"polarity 0 at event 2 \(line 3\) in a stream that uses -1/\+1 \(first -1 at event 0\)",
+    ):
+        run(f, width=W, height=H)
 
 
 # --- malformed and truncated files -----------------------------------------------------------------

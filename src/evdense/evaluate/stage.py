@@ -307,14 +307,7 @@ def evaluate_source(
             curve_thresholds=conf.curve_thresholds,
         ).to_dict()
         result["geometry"] = {name: empty for name in ["sparse", "dense", *(meshes or {})]}
-        if frames_dir is not None and reference_frames is None:
-            result["images"] = evaluate_images(Path(frames_dir), gt_dir, conf)
-        elif frames_dir is not None:
-            result["images"] = evaluate_against_reference(
-                Path(frames_dir), Path(reference_frames), conf
-            )
-        write_json_atomic(out_path, result, default=float)
-        return result
+        return _with_images(result, out_path, frames_dir, reference_frames, gt_dir, conf)
     t_gt, T_gt = read_tum(gt_dir / "trajectory.txt")
     traj_path = sfm_dir / "trajectory.txt"
     if not traj_path.exists():
@@ -377,6 +370,19 @@ def evaluate_source(
             _f_at(m.to_dict(), conf.default_threshold),
         )
     result["geometry"] = geometry
+    return _with_images(result, out_path, frames_dir, reference_frames, gt_dir, conf)
+
+
+def _with_images(
+    result: dict[str, Any],
+    out_path: Path,
+    frames_dir: str | Path | None,
+    reference_frames: str | Path | None,
+    gt_dir: Path,
+    conf: EvalConfig,
+) -> dict[str, Any]:
+    """Add the image figures of ``frames_dir`` (against the GT frames, or against
+    ``reference_frames`` when given) to ``result``, and write it to ``out_path``."""
     if frames_dir is not None and reference_frames is None:
         result["images"] = evaluate_images(Path(frames_dir), gt_dir, conf)
     elif frames_dir is not None:

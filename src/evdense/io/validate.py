@@ -112,24 +112,23 @@ def _polarity(raw: RawEvents, path: Path, state: dict) -> np.ndarray:
     if bad.any():
         i = int(np.argmax(bad))
         raise ValueError(f"{path}: polarity {p[i]} at {raw.where(i)}; expected 0/1 or -1/+1")
-    if is_zero.any():
-        if state.get("enc") == "-1/+1":
-            i = int(np.argmax(is_zero))
+    # the encoding is fixed by the first 0 or -1 seen; the other one later is an error
+    seen = [
+        (int(np.argmax(off)), value, enc, other_value, other_enc)
+        for off, value, enc, other_value, other_enc in (
+            (is_zero, "0", "0/1", "-1", "-1/+1"),
+            (is_neg, "-1", "-1/+1", "0", "0/1"),
+        )
+        if off.any()
+    ]
+    for i, value, enc, other_value, other_enc in sorted(seen):
+        if state.get("enc") == other_enc:
             raise ValueError(
-                f"{path}: polarity 0 at {raw.where(i)} in a stream that uses -1/+1 "
-                f"(first -1 at event {state['first']}); mixed polarity encodings"
+                f"{path}: polarity {value} at {raw.where(i)} in a stream that uses {other_enc} "
+                f"(first {other_value} at event {state['first']}); mixed polarity encodings"
             )
         if "enc" not in state:
-            state["enc"], state["first"] = "0/1", raw.start + int(np.argmax(is_zero))
-    if is_neg.any():
-        if state.get("enc") == "0/1":
-            i = int(np.argmax(is_neg))
-            raise ValueError(
-                f"{path}: polarity -1 at {raw.where(i)} in a stream that uses 0/1 "
-                f"(first 0 at event {state['first']}); mixed polarity encodings"
-            )
-        if "enc" not in state:
-            state["enc"], state["first"] = "-1/+1", raw.start + int(np.argmax(is_neg))
+            state["enc"], state["first"] = enc, raw.start + i
     out = np.ones(len(p), dtype=np.int8)
     out[is_zero | is_neg] = -1
     return out

@@ -285,9 +285,7 @@ def _refine(
     t0 = time.monotonic()
     vertices = np.asarray(vertices, dtype=np.float64)
     faces = np.asarray(faces, dtype=np.int64)
-    if len(views) > config.max_views:
-        keep = np.unique(np.linspace(0, len(views) - 1, config.max_views).round().astype(int))
-        views = views.subset(keep)
+    views = views.at_most(config.max_views)
     if config.regularizer not in ("displacement", "surface"):
         raise ValueError(
             f"refine.regularizer must be displacement or surface, not {config.regularizer!r}"

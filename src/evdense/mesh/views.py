@@ -72,6 +72,12 @@ class Views:
             images=[self.images[i] for i in idx] if self.images is not None else None,
         )
 
+    def at_most(self, n: int) -> Views:
+        """These views, or ``n`` of them spread evenly over the sequence when there are more."""
+        if len(self) <= n:
+            return self
+        return self.subset(np.unique(np.linspace(0, len(self) - 1, n).round().astype(int)))
+
 
 def read_image(path: str | Path) -> np.ndarray:
     """Read an 8- or 16-bit PNG/JPEG as float32 in [0, 1], ``(H, W)`` or ``(H, W, 3)`` (alpha dropped)."""

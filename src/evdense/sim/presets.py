@@ -17,6 +17,19 @@ def _kp(position: list[float], look_at: list[float]) -> dict:
     return {"position": position, "look_at": look_at}
 
 
+def _room(
+    size: list[float], wall: str = "wall", floor: str = "floor", ceiling: str = "ceiling"
+) -> dict:
+    """An enclosing room of ``size`` (x, y, z extents) standing on z = 0, centred on the z axis."""
+    return {
+        "type": "room",
+        "size": size,
+        "center": [0.0, 0.0, size[2] / 2],
+        "material": wall,
+        "face_materials": {"floor": floor, "ceiling": ceiling},
+    }
+
+
 def _box(size: list[float], center: list[float], material: str, **extra: object) -> dict:
     """A box object: ``size`` (x, y, z extents), ``center``, ``material``, and optional
     ``rotation_deg``, ``open_faces``, ``face_materials``."""
@@ -75,13 +88,7 @@ ROOM = {
         },
     },
     "objects": [
-        {
-            "type": "room",
-            "size": [7.0, 6.0, 3.0],
-            "center": [0.0, 0.0, 1.5],
-            "material": "wall",
-            "face_materials": {"floor": "floor", "ceiling": "ceiling"},
-        },
+        _room([7.0, 6.0, 3.0]),
         _box([1.0, 0.8, 0.9], [-0.8, 1.2, 0.45], "brick", rotation_deg=[0, 0, 15]),
         _box([0.5, 0.5, 0.5], [-0.8, 1.2, 1.15], "leaves", rotation_deg=[0, 0, 40]),
         _box([0.6, 0.6, 0.6], [0.6, 1.6, 0.3], "checker", rotation_deg=[0, 0, -10]),
@@ -185,13 +192,7 @@ DESK = {
         },
     },
     "objects": [
-        {
-            "type": "room",
-            "size": [5.0, 4.0, 2.8],
-            "center": [0.0, 0.0, 1.4],
-            "material": "wall",
-            "face_materials": {"floor": "floor", "ceiling": "ceiling"},
-        },
+        _room([5.0, 4.0, 2.8]),
         # desk: top slab on two pedestals
         {"type": "box", "size": [1.8, 0.8, 0.05], "center": [0.0, 1.55, 0.75], "material": "wood"},
         _box([0.45, 0.7, 0.725], [-0.62, 1.55, 0.3625], "wood", open_faces=["bottom"]),
@@ -240,13 +241,8 @@ DESK = {
 
 def _facade_objects() -> list[dict]:
     objs: list[dict] = [
-        {
-            "type": "room",  # backdrop: street below, distant surroundings on the sides and behind
-            "size": [60.0, 60.0, 30.0],
-            "center": [0.0, 0.0, 15.0],
-            "material": "surroundings",
-            "face_materials": {"floor": "street", "ceiling": "sky"},
-        },
+        # backdrop: street below, distant surroundings on the sides and behind
+        _room([60.0, 60.0, 30.0], wall="surroundings", floor="street", ceiling="sky"),
         _box([16.0, 8.0, 9.5], [0.0, 4.0, 4.75], "brick", open_faces=["bottom"]),
         # door with a canopy (strong parallax) and two planters
         {

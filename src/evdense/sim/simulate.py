@@ -29,14 +29,17 @@ _EVENT_STREAM = 1
 _CONVENTIONAL_STREAM = 2
 
 
-def _scene_radiance(dataset_conf: dict, sim_conf: dict | None) -> tuple[Any, RadianceFn]:
-    """The dataset's scene and its ``radiance_at(t)`` ``(H, W)`` float32 function."""
+def _scene_radiance(
+    dataset_conf: dict, sim_conf: dict | None, stream: int
+) -> tuple[Any, RadianceFn, float, np.random.Generator]:
+    """The dataset's scene, its ``radiance_at(t)`` ``(H, W)`` float32 function, its duration in
+    seconds, and the random stream ``stream`` of the dataset's seed."""
     from evdense.sim.render import Renderer
     from evdense.sim.scene import load_scene
 
     scene = load_scene(dataset_conf, sim_conf)
-    renderer = Renderer(scene)
-    return scene, renderer.radiance_at
+    rng = np.random.default_rng([int(scene.dataset["seed"]), stream])
+    return scene, Renderer(scene).radiance_at, float(scene.trajectory.duration), rng
 
 
 def _provenance(scene: Any, sim_conf: dict | None, section: str) -> dict[str, Any]:
@@ -59,9 +62,7 @@ def simulate_events(dataset_conf: dict, sim_conf: dict | None, out_path: str | P
     """
     out_path = Path(out_path)
     conf = EventCameraConfig.from_dict((sim_conf or {}).get("event_camera"))
-    scene, radiance_at = _scene_radiance(dataset_conf, sim_conf)
-    duration = float(scene.trajectory.duration)
-    rng = np.random.default_rng([int(scene.dataset["seed"]), _EVENT_STREAM])
+    scene, radiance_at, duration, rng = _scene_radiance(dataset_conf, sim_conf, _EVENT_STREAM)
     log.info(
         "simulating events: scene %s, %.3f s, %dx%d pixels, C+ %.3f C- %.3f",
         scene.name,
@@ -93,9 +94,9 @@ def simulate_conventional(dataset_conf: dict, sim_conf: dict | None, out_dir: st
     """
     out_dir = Path(out_dir)
     conf = ConventionalCameraConfig.from_dict((sim_conf or {}).get("conventional_camera"))
-    scene, radiance_at = _scene_radiance(dataset_conf, sim_conf)
-    duration = float(scene.trajectory.duration)
-    rng = np.random.default_rng([int(scene.dataset["seed"]), _CONVENTIONAL_STREAM])
+    scene, radiance_at, duration, rng = _scene_radiance(
+        dataset_conf, sim_conf, _CONVENTIONAL_STREAM
+    )
     log.info(
         "simulating conventional frames: scene %s, %.3f s at %.1f fps, exposure %.1f ms",
         scene.name,

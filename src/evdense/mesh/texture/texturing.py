@@ -30,9 +30,7 @@ def texture_mesh_views(
     t0 = time.monotonic()
     vertices = np.asarray(vertices, dtype=np.float64)
     faces = np.asarray(faces, dtype=np.int64)
-    if len(views) > config.max_views:
-        keep = np.unique(np.linspace(0, len(views) - 1, config.max_views).round().astype(int))
-        views = views.subset(keep)
+    views = views.at_most(config.max_views)
     F = len(faces)
     adjacency = face_adjacency(faces)
     cand = view_candidates(vertices, faces, views, config)
