@@ -305,7 +305,6 @@ def run_sfm(
     ``min_registered_images`` or ``min_registered_fraction`` of the selected frames register,
     ``ValueError`` on a bad frames folder or option (before anything is written).
     """
-    import pycolmap
 
     cfg = config if isinstance(config, SfmConfig) else SfmConfig.from_dict(config)
     cfg.check()
@@ -341,8 +340,51 @@ def run_sfm(
         cfg.select,
     )
 
+    models, diagnostics = _reconstruct(frames_dir, work, names, cfg, opts, threads, times)
+    rec = _largest_model(models, frames_dir, work, names, cfg, opts, diagnostics, times)
+    n_reg = rec.num_reg_images()
+
+    t0 = time.perf_counter()
+    shutil.rmtree(work / "mapper")
+    reg_names = _write_model(rec, work, by_name)
+    times["write_s"] = time.perf_counter() - t0
+
+    stats = _stats(
+        rec, frames, frames_dir, names, reg_names, cfg, opts, threads, times, diagnostics
+    )
+    write_json_atomic(work / "stats.json", stats)
+    if out_dir.exists():
+        shutil.rmtree(out_dir)
+    work.replace(out_dir)
+    log.info(
+        "SfM done: %d/%d frames registered, %d points, track length %.2f, reprojection error %.3f px, "
+        "f = %.2f px (%.1f s) -> %s",
+        n_reg,
+        len(names),
+        stats["num_points3D"],
+        stats["mean_track_length"],
+        stats["mean_reprojection_error_px"],
+        stats["camera"]["focal_length"],
+        stats["time_s"]["total_s"],
+        out_dir,
+    )
+    return stats
+
+
+def _reconstruct(
+    frames_dir: Path,
+    work: Path,
+    names: list[str],
+    cfg: SfmConfig,
+    opts: _Options,
+    threads: int,
+    times: dict[str, float],
+) -> tuple[list[Any], dict[str, Any]]:
+    """Features, matches and incremental mapping of ``names`` in ``work``: the models, largest
+    first, and the database's diagnostics; the steps' seconds go into ``times``."""
+    import pycolmap
+
     database = work / "database.db"
-    mapper_dir = work / "mapper"
     old_level = pycolmap.logging.minloglevel
     pycolmap.logging.minloglevel = getattr(pycolmap.logging, cfg.colmap_log_level)
     pycolmap.set_random_seed(cfg.seed)
@@ -377,11 +419,25 @@ def run_sfm(
 
         t0 = time.perf_counter()
         log.info("incremental mapping and bundle adjustment")
-        models = _map(database, frames_dir, mapper_dir, opts, len(names))
+        models = _map(database, frames_dir, work / "mapper", opts, len(names))
         times["map_s"] = time.perf_counter() - t0
     finally:
         pycolmap.logging.minloglevel = old_level
+    return models, diagnostics
 
+
+def _largest_model(
+    models: list[Any],
+    frames_dir: Path,
+    work: Path,
+    names: list[str],
+    cfg: SfmConfig,
+    opts: _Options,
+    diagnostics: dict[str, Any],
+    times: dict[str, float],
+) -> Any:
+    """The largest model; :class:`SfmError` (with ``work/diagnostics.json`` written) when it
+    registers fewer frames than the config asks."""
     n_reg = models[0].num_reg_images() if models else 0
     needed = max(
         1, cfg.min_registered_images, int(np.ceil(cfg.min_registered_fraction * len(names)))
@@ -411,7 +467,6 @@ def run_sfm(
         )
         log.error(message)
         raise SfmError(message, diag_path)
-    rec = models[0]
     if len(models) > 1:
         log.warning(
             "%d models; keeping the largest (%d frames), others: %s",
@@ -419,9 +474,12 @@ def run_sfm(
             n_reg,
             [m.num_reg_images() for m in models[1:]],
         )
+    return models[0]
 
-    t0 = time.perf_counter()
-    shutil.rmtree(mapper_dir)
+
+def _write_model(rec: Any, work: Path, by_name: dict[str, Frame]) -> list[str]:
+    """The model in ``work``: ``sparse/0`` (binary), ``sparse/0_text``, ``points3D.ply`` and
+    ``trajectory.txt``; returns the registered frames' names."""
     model_dir, text_dir = work / "sparse" / "0", work / "sparse" / "0_text"
     model_dir.mkdir(parents=True)
     text_dir.mkdir(parents=True)
@@ -430,9 +488,26 @@ def run_sfm(
     rec.export_PLY(work / "points3D.ply")
     t_reg, T_reg, reg_names = _trajectory(rec, by_name)
     write_tum(work / "trajectory.txt", t_reg, T_reg)
-    times["write_s"] = time.perf_counter() - t0
+    return reg_names
 
-    stats: dict[str, Any] = {
+
+def _stats(
+    rec: Any,
+    frames: list[Frame],
+    frames_dir: Path,
+    names: list[str],
+    reg_names: list[str],
+    cfg: SfmConfig,
+    opts: _Options,
+    threads: int,
+    times: dict[str, float],
+    diagnostics: dict[str, Any],
+) -> dict[str, Any]:
+    """The statistics ``stats.json`` holds."""
+    import pycolmap
+
+    n_reg = rec.num_reg_images()
+    return {
         "frames_dir": str(frames_dir.resolve()),
         "num_frames": len(frames),
         "num_selected": len(names),
@@ -455,23 +530,6 @@ def run_sfm(
         "config": asdict(cfg),
         "pycolmap_version": pycolmap.__version__,
     }
-    write_json_atomic(work / "stats.json", stats)
-    if out_dir.exists():
-        shutil.rmtree(out_dir)
-    work.replace(out_dir)
-    log.info(
-        "SfM done: %d/%d frames registered, %d points, track length %.2f, reprojection error %.3f px, "
-        "f = %.2f px (%.1f s) -> %s",
-        n_reg,
-        len(names),
-        stats["num_points3D"],
-        stats["mean_track_length"],
-        stats["mean_reprojection_error_px"],
-        stats["camera"]["focal_length"],
-        stats["time_s"]["total_s"],
-        out_dir,
-    )
-    return stats
 
 
 def write_failed_sfm(out_dir: str | Path, error: SfmError) -> Path:
