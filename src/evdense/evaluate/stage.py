@@ -318,18 +318,7 @@ def evaluate_source(
     ce = align_trajectory_to_gt(t_est, T_est, t_gt, T_gt)
     s, R, t = ce.scale, ce.R, ce.t
 
-    products: dict[str, Any] = {"sparse": _sparse_points(sfm_dir)}
-    if dense_cloud is not None and Path(dense_cloud).exists():
-        products["dense"] = _read_cloud(Path(dense_cloud))
-    for name, p in (meshes or {}).items():
-        if name != "textured" and Path(p).exists():  # the textured mesh is scored by its renders
-            products[name] = _read_mesh(Path(p))
-    aligned: dict[str, Any] = {}
-    for name, obj in products.items():
-        if isinstance(obj, np.ndarray):
-            aligned[name] = apply_sim3(s, R, t, obj) if len(obj) else obj
-        else:
-            aligned[name] = _transform_mesh(obj, s, R, t)
+    aligned = _aligned_products(sfm_dir, dense_cloud, meshes, s, R, t)
 
     H = np.eye(4)
     ref = (
@@ -346,6 +335,43 @@ def evaluate_source(
     if textured and Path(textured).exists() and (gt_dir / "scene.json").is_file():
         # rendered against GT intensity, which only a synthetic scene has
         result["textured_renders"] = evaluate_textured(Path(textured), (s, R, t), H, gt_dir, conf)
+    result["geometry"] = _geometry_scores(aligned, H, gt_mesh, gt_samples, conf)
+    return _with_images(result, out_path, frames_dir, reference_frames, gt_dir, conf)
+
+
+def _aligned_products(
+    sfm_dir: Path,
+    dense_cloud: str | Path | None,
+    meshes: dict[str, str | Path] | None,
+    s: float,
+    R: np.ndarray,
+    t: np.ndarray,
+) -> dict[str, Any]:
+    """The sparse points, the dense cloud and the meshes that exist (not the textured one,
+    which is scored by its renders), mapped into the GT frame by ``x -> s R x + t``."""
+    products: dict[str, Any] = {"sparse": _sparse_points(sfm_dir)}
+    if dense_cloud is not None and Path(dense_cloud).exists():
+        products["dense"] = _read_cloud(Path(dense_cloud))
+    for name, p in (meshes or {}).items():
+        if name != "textured" and Path(p).exists():
+            products[name] = _read_mesh(Path(p))
+    aligned: dict[str, Any] = {}
+    for name, obj in products.items():
+        if isinstance(obj, np.ndarray):
+            aligned[name] = apply_sim3(s, R, t, obj) if len(obj) else obj
+        else:
+            aligned[name] = _transform_mesh(obj, s, R, t)
+    return aligned
+
+
+def _geometry_scores(
+    aligned: dict[str, Any],
+    H: np.ndarray,
+    gt_mesh: o3d.geometry.TriangleMesh,
+    gt_samples: np.ndarray | None,
+    conf: EvalConfig,
+) -> dict[str, Any]:
+    """Accuracy, completeness, P/R/F and Chamfer of each aligned product after the ICP ``H``."""
     geometry = {}
     for name, obj in aligned.items():
         if isinstance(obj, np.ndarray):
@@ -369,8 +395,7 @@ def evaluate_source(
             100 * conf.default_threshold,
             _f_at(m.to_dict(), conf.default_threshold),
         )
-    result["geometry"] = geometry
-    return _with_images(result, out_path, frames_dir, reference_frames, gt_dir, conf)
+    return geometry
 
 
 def _with_images(
