@@ -305,7 +305,6 @@ def run_sfm(
     ``min_registered_images`` or ``min_registered_fraction`` of the selected frames register,
     ``ValueError`` on a bad frames folder or option (before anything is written).
     """
-
     cfg = config if isinstance(config, SfmConfig) else SfmConfig.from_dict(config)
     cfg.check()
     threads = int(num_threads if num_threads is not None else cfg.num_threads)
