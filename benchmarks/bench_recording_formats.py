@@ -8,16 +8,17 @@ Usage: PYTHONPATH=src .venv/bin/python benchmarks/bench_recording_formats.py
 2. Writes what its simulator made (events, the conventional camera's frames, the intrinsics, the
    GT poses) as recordings: an RPG folder (events.txt, images.txt + images/, calib.txt,
    groundtruth.txt), an AEDAT4 file (events + frames; calibration and poses given beside it with
-   the dataset keys ``calibration`` and ``gt_trajectory``) and a ROS 1 bag (dvs_msgs events,
-   sensor_msgs images, CameraInfo, PoseStamped). Every one names the scene's GT mesh (``gt_mesh``).
+   the dataset keys ``calibration`` and ``gt_trajectory``), a ROS 1 bag (dvs_msgs events,
+   sensor_msgs images, CameraInfo, PoseStamped) and a ROS 2 bag (MCAP storage; event_camera_msgs
+   EventPackets in libcaer_driver's ``libcaer`` encoding, with the same side data). Every one
+   names the scene's GT mesh (``gt_mesh``).
 3. Runs the workflow on those recordings with the same settings (SfM estimates the intrinsics as
    for the synthetic scene, ``sfm.calibration: null``, and runs single-threaded in both runs, so
    that identical input gives identical models).
 
 Prints, per dataset and image source: frames registered, ATE (% of path) and the refined mesh's
 F-score at the default threshold. Identical rows mean the readers hand the pipeline exactly what
-the simulator made. (A ROS 2 bag writer is not part of the project: ROS 2 is covered by the real
-bag in the anchors.)
+the simulator made.
 """
 
 from __future__ import annotations
@@ -37,7 +38,7 @@ import yaml
 from evdense.camera import load_camera
 from evdense.events.container import EventFile
 from evdense.poses import read_tum, write_tum
-from evdense.testing.recordings import write_aedat4, write_rosbag1, write_rpg_text
+from evdense.testing.recordings import write_aedat4, write_rosbag1, write_rosbag2, write_rpg_text
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -78,6 +79,8 @@ def write_recordings(res: Path, out: Path) -> dict[str, dict]:
     write_aedat4(out / "rec.aedat4", ev.t, ev.x, ev.y, ev.p, w, h, frames=frames)
     write_rosbag1(out / "rec.bag", ev.t, ev.x, ev.y, ev.p, w, h, frames=frames, camera=cam,
                   poses=(t_gt, T_gt))  # fmt: skip
+    write_rosbag2(out / "rec_ros2", ev.t, ev.x, ev.y, ev.p, w, h, frames=frames, camera=cam,
+                  poses=(t_gt, T_gt))  # fmt: skip
     return {
         "as_rpg": {"recording": str(rpg), **gt},
         "as_aedat4": {
@@ -87,6 +90,7 @@ def write_recordings(res: Path, out: Path) -> dict[str, dict]:
             "gt_trajectory": str(out / "poses.txt"),
         },  # fmt: skip
         "as_rosbag1": {"recording": str(out / "rec.bag"), **gt},
+        "as_rosbag2": {"recording": str(out / "rec_ros2"), **gt},
     }
 
 

@@ -24,6 +24,7 @@ from evdense.testing.recordings import (
     write_npy,
     write_npz,
     write_rosbag1,
+    write_rosbag2,
     write_rpg_text,
 )
 
@@ -204,7 +205,25 @@ def test_rosbag_round_trip(tmp_path, rng):
     assert_same(got, ev)
 
 
-def test_rosbag_frames_camera_info_and_poses(tmp_path, rng):
+@pytest.mark.parametrize("encoding,storage", [("libcaer", "mcap"), ("evt3", "sqlite3")])
+def test_rosbag2_event_packets_round_trip(tmp_path, rng, encoding, storage):
+    # EVT 3.0 holds 24-bit sensor time (the reader unrolls its wraps from the first word on)
+    ev = random_stream(rng, t0=1_468_939_993_000_000 if encoding == "libcaer" else 16_700_000)
+    f = write_rosbag2(tmp_path / "bag", ev.t, ev.x, ev.y, ev.p, W, H, encoding=encoding,
+                      storage=storage, events_per_message=777)  # fmt: skip
+    got, (fmt, w, h) = read_all(f)
+    assert (fmt, w, h) == ("rosbag", W, H)
+    assert_same(got, ev)
+
+
+ROS_BAGS = {
+    "ros1": lambda path, *a, **kw: write_rosbag1(path.with_suffix(".bag"), *a, **kw),
+    "ros2": lambda path, *a, **kw: write_rosbag2(path, *a, encoding="libcaer", **kw),
+}
+
+
+@pytest.mark.parametrize("bag", sorted(ROS_BAGS))
+def test_rosbag_frames_camera_info_and_poses(tmp_path, rng, bag):
     ev = random_stream(rng, n=3000, t0=1_468_939_993_000_000)
     frames = [(int(ev.t[10]), rng.integers(0, 256, (H, W), dtype=np.uint8))]
     frames.append((int(ev.t[2000]), rng.integers(0, 256, (H, W, 3), dtype=np.uint8)))
@@ -213,8 +232,8 @@ def test_rosbag_frames_camera_info_and_poses(tmp_path, rng):
     T = np.stack(
         [look_at(np.array([0.1 * i, 0.0, 0.0]), np.array([0.0, 0.0, 2.0])) for i in range(3)]
     )
-    f = write_rosbag1(
-        tmp_path / "e.bag", ev.t, ev.x, ev.y, ev.p, W, H, frames=frames, camera=cam, poses=(t_gt, T)
+    f = ROS_BAGS[bag](
+        tmp_path / "e", ev.t, ev.x, ev.y, ev.p, W, H, frames=frames, camera=cam, poses=(t_gt, T)
     )
     out = tmp_path / "out"
     res = ingest_recording(f, out / "events.h5", out / "conventional", out / "gt")

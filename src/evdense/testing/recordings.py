@@ -1,5 +1,5 @@
 """Writers of the recording formats our readers take (AEDAT4, E2VID HDF5, NumPy, Prophesee
-DAT/EVT2/EVT3, ROS 1 bags, RPG text): test and benchmark fixtures, so that every reader is tested
+DAT/EVT2/EVT3, ROS 1 and ROS 2 bags, RPG text): test and benchmark fixtures, so that every reader is tested
 on files made from known events (the pipeline itself never writes these formats)."""
 
 from __future__ import annotations
@@ -214,8 +214,26 @@ def write_npz(
 def write_evt3(
     path: str | Path, t_us, x, y, p, width: int, height: int, vectorize: bool = True
 ) -> Path:
-    """Write an EVT 3.0 ``.raw`` file. With ``vectorize``, runs of events with the same time, row and
-    polarity and increasing x within 12 pixels become VECT_BASE_X + VECT_12 words (as cameras do).
+    """Write an EVT 3.0 ``.raw`` file (:func:`encode_evt3` after the Prophesee header)."""
+    with open(path, "wb") as f:
+        f.write(
+            _header_text(
+                [
+                    "camera_integrator_name Prophesee",
+                    "evt 3.0",
+                    f"format EVT3;height={height};width={width}",
+                    f"geometry {width}x{height}",
+                    "end",
+                ]
+            )
+        )
+        f.write(encode_evt3(t_us, x, y, p, vectorize).tobytes())
+    return Path(path)
+
+
+def encode_evt3(t_us, x, y, p, vectorize: bool = True) -> np.ndarray:
+    """Events as EVT 3.0 words (``<u2``). With ``vectorize``, runs of events with the same time, row
+    and polarity and increasing x within 12 pixels become VECT_BASE_X + VECT_12 words (as cameras do).
 
     A plain Python loop: meant for tests and small streams.
     """
@@ -265,20 +283,7 @@ def write_evt3(
         else:
             out.append((0x2 << 12) | (int(pol[i]) << 11) | int(x[i]))
         i = j
-    with open(path, "wb") as f:
-        f.write(
-            _header_text(
-                [
-                    "camera_integrator_name Prophesee",
-                    "evt 3.0",
-                    f"format EVT3;height={height};width={width}",
-                    f"geometry {width}x{height}",
-                    "end",
-                ]
-            )
-        )
-        f.write(np.asarray(out, dtype="<u2").tobytes())
-    return Path(path)
+    return np.asarray(out, dtype="<u2")
 
 
 def write_evt2(path: str | Path, t_us, x, y, p, width: int, height: int) -> Path:
@@ -365,19 +370,11 @@ def write_rosbag1(
     """
     from rosbags.rosbag1 import Writer
 
-    from evdense.poses import poses_to_tum
-
     ts = dvs_typestore()
-    T = ts.types
     msgdef, md5 = ts.generate_msgdef("dvs_msgs/msg/EventArray")
     path = Path(path)
     path.unlink(missing_ok=True)
     t_us = np.asarray(t_us, dtype=np.int64)
-
-    def header(seq: int, t: int):
-        stamp = T["builtin_interfaces/msg/Time"](sec=t // 1_000_000, nanosec=(t % 1_000_000) * 1000)
-        return T["std_msgs/msg/Header"](seq=seq, stamp=stamp, frame_id="dvs")
-
     with Writer(path) as w:
         conn = w.add_connection(topic, "dvs_msgs/msg/EventArray", msgdef=msgdef, md5sum=md5)
         for seq, s in enumerate(range(0, len(t_us), events_per_message)):
@@ -395,58 +392,175 @@ def write_rosbag1(
                 head + frame_id + np.array([height, width, len(ev)], "<u4").tobytes() + ev.tobytes()
             )
             w.write(conn, t_last * 1000, raw)
-        if frames:
-            c = w.add_connection("/dvs/image_raw", "sensor_msgs/msg/Image", typestore=ts)
-            for k, (ft, img) in enumerate(frames):
-                img = np.ascontiguousarray(img, dtype=np.uint8)
-                ch = 1 if img.ndim == 2 else img.shape[2]
-                msg = T["sensor_msgs/msg/Image"](
-                    header=header(k, int(ft)),
+        _write_side_data(w, ts, False, frames, camera, poses, int(t_us[0]) if len(t_us) else 0)
+    return path
+
+
+EVENT_PACKET_MSG = (
+    "std_msgs/Header header\nuint32 height\nuint32 width\nuint64 seq\nuint64 time_base\n"
+    "string encoding\nbool is_bigendian\nuint8[] events\n"
+)
+"""``event_camera_msgs/msg/EventPacket`` (the definition its maintainers publish)."""
+
+
+def write_rosbag2(
+    path: str | Path,
+    t_us: np.ndarray,
+    x: np.ndarray,
+    y: np.ndarray,
+    p: np.ndarray,
+    width: int,
+    height: int,
+    encoding: str = "libcaer",
+    storage: str = "mcap",
+    topic: str = "/event_camera/events",
+    events_per_message: int = 5000,
+    frames: list[tuple[int, np.ndarray]] | None = None,
+    camera: Camera | None = None,
+    poses: tuple[np.ndarray, np.ndarray] | None = None,
+) -> Path:
+    """Write a ROS 2 bag (a folder; ``storage`` ``mcap`` or ``sqlite3``) of
+    ``event_camera_msgs/EventPacket`` messages, as today's ROS 2 drivers record them.
+
+    ``encoding``: ``libcaer`` (libcaer_driver's uncompressed packets: per event a uint32 address,
+    bit 1 polarity, bits 2-16 y, bits 17-31 x, and an int32 time in us after the packet's
+    ``time_base``, which is in ns) or ``evt3`` (metavision_driver: consecutive pieces of one EVT 3.0
+    stream, :func:`encode_evt3`, split at word boundaries). Side data as :func:`write_rosbag1`, in
+    ROS 2 (CDR) serialisation.
+    """
+    from rosbags.rosbag2 import StoragePlugin, Writer
+    from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+
+    if encoding not in ("libcaer", "evt3"):
+        raise ValueError(f"encoding {encoding!r}: libcaer or evt3")
+    if encoding == "evt3" and len(t_us) and int(np.min(t_us)) >= 1 << 24:
+        raise ValueError("evt3 holds sensor time that starts below 2^24 us (16.8 s); shift t_us")
+    plugins = {"mcap": StoragePlugin.MCAP, "sqlite3": StoragePlugin.SQLITE3}
+    ts = get_typestore(Stores.ROS2_HUMBLE)
+    ts.register(get_types_from_msg(EVENT_PACKET_MSG, "event_camera_msgs/msg/EventPacket"))
+    T = ts.types
+    path = Path(path)
+    if path.exists():
+        import shutil
+
+        shutil.rmtree(path)
+    t_us = np.asarray(t_us, dtype=np.int64)
+    x, y, pol = np.asarray(x), np.asarray(y), np.asarray(p) > 0
+    evt3 = encode_evt3(t_us, x, y, pol) if encoding == "evt3" else None
+    n_msgs = -(-len(t_us) // events_per_message)
+    with Writer(path, version=8, storage_plugin=plugins[storage]) as w:
+        kind = "event_camera_msgs/msg/EventPacket"
+        conn = w.add_connection(topic, kind, typestore=ts)
+        for seq in range(n_msgs):
+            e = slice(seq * events_per_message, (seq + 1) * events_per_message)
+            t_last = int(t_us[e][-1])
+            if evt3 is not None:  # pieces of one stream, cut at the same share of the words
+                a, b = (len(evt3) * k // n_msgs for k in (seq, seq + 1))
+                payload, time_base = evt3[a:b].tobytes(), 0
+            else:
+                tb = int(t_us[e][0])
+                addr = (x[e].astype(np.uint32) << 17) | (y[e].astype(np.uint32) << 2)
+                addr |= pol[e].astype(np.uint32) << 1
+                rec = np.empty(len(addr), dtype=[("a", "<u4"), ("t", "<i4")])
+                rec["a"], rec["t"] = addr, t_us[e] - tb
+                payload, time_base = rec.tobytes(), tb * 1000
+            msg = T[kind](
+                header=_ros_header(T, True, seq, t_last),
+                height=height,
+                width=width,
+                seq=seq,
+                time_base=time_base,
+                encoding=encoding,
+                is_bigendian=False,
+                events=np.frombuffer(payload, dtype=np.uint8),
+            )
+            w.write(conn, t_last * 1000, ts.serialize_cdr(msg, kind))
+        _write_side_data(w, ts, True, frames, camera, poses, int(t_us[0]) if len(t_us) else 0)
+    return path
+
+
+def _ros_header(T, ros2: bool, seq: int, t_us: int):
+    stamp = T["builtin_interfaces/msg/Time"](
+        sec=t_us // 1_000_000, nanosec=(t_us % 1_000_000) * 1000
+    )
+    if ros2:  # ROS 2 headers have no seq
+        return T["std_msgs/msg/Header"](stamp=stamp, frame_id="dvs")
+    return T["std_msgs/msg/Header"](seq=seq, stamp=stamp, frame_id="dvs")
+
+
+def _write_side_data(
+    w,
+    ts,
+    ros2: bool,
+    frames: list[tuple[int, np.ndarray]] | None,
+    camera: Camera | None,
+    poses: tuple[np.ndarray, np.ndarray] | None,
+    t0_us: int,
+) -> None:
+    """Frames, camera info and poses (see :func:`write_rosbag1`) into the open bag writer ``w``."""
+    from evdense.poses import poses_to_tum
+
+    T = ts.types
+
+    def put(topic: str, kind: str, items) -> None:
+        c = w.add_connection(topic, kind, typestore=ts)
+        for t, msg in items:
+            w.write(
+                c, t * 1000, ts.serialize_cdr(msg, kind) if ros2 else ts.serialize_ros1(msg, kind)
+            )
+
+    def images():
+        for k, (ft, img) in enumerate(frames):
+            img = np.ascontiguousarray(img, dtype=np.uint8)
+            ch = 1 if img.ndim == 2 else img.shape[2]
+            yield (
+                int(ft),
+                T["sensor_msgs/msg/Image"](
+                    header=_ros_header(T, ros2, k, int(ft)),
                     height=img.shape[0],
                     width=img.shape[1],
                     encoding="mono8" if ch == 1 else "rgb8",
                     is_bigendian=0,
                     step=img.shape[1] * ch,
                     data=img.reshape(-1),
-                )
-                w.write(c, int(ft) * 1000, ts.serialize_ros1(msg, "sensor_msgs/msg/Image"))
-        if camera is not None:
-            c = w.add_connection("/dvs/camera_info", "sensor_msgs/msg/CameraInfo", typestore=ts)
-            K = camera.K.reshape(-1)
-            P = np.concatenate([camera.K, np.zeros((3, 1))], axis=1).reshape(-1)
-            roi = T["sensor_msgs/msg/RegionOfInterest"](
-                x_offset=0, y_offset=0, height=0, width=0, do_rectify=False
+                ),
             )
-            msg = T["sensor_msgs/msg/CameraInfo"](
-                header=header(0, int(t_us[0]) if len(t_us) else 0),
-                height=camera.height,
-                width=camera.width,
-                distortion_model="plumb_bob",
-                D=np.array([*camera.dist, 0.0]),
-                K=K,
-                R=np.eye(3).reshape(-1),
-                P=P,
-                binning_x=0,
-                binning_y=0,
-                roi=roi,
+
+    def pose_msgs():
+        rows = poses_to_tum(np.asarray(poses[1]))
+        for k, (tp, r) in enumerate(zip(np.asarray(poses[0]), rows, strict=True)):
+            t_p = int(round(float(tp) * 1e6))
+            pose = T["geometry_msgs/msg/Pose"](
+                position=T["geometry_msgs/msg/Point"](x=r[0], y=r[1], z=r[2]),
+                orientation=T["geometry_msgs/msg/Quaternion"](x=r[3], y=r[4], z=r[5], w=r[6]),
             )
-            w.write(
-                c,
-                (int(t_us[0]) if len(t_us) else 0) * 1000,
-                ts.serialize_ros1(msg, "sensor_msgs/msg/CameraInfo"),
+            yield (
+                t_p,
+                T["geometry_msgs/msg/PoseStamped"](header=_ros_header(T, ros2, k, t_p), pose=pose),
             )
-        if poses is not None:
-            c = w.add_connection("/optitrack/davis", "geometry_msgs/msg/PoseStamped", typestore=ts)
-            rows = poses_to_tum(np.asarray(poses[1]))
-            for k, (tp, r) in enumerate(zip(np.asarray(poses[0]), rows, strict=True)):
-                t_p = int(round(float(tp) * 1e6))
-                pose = T["geometry_msgs/msg/Pose"](
-                    position=T["geometry_msgs/msg/Point"](x=r[0], y=r[1], z=r[2]),
-                    orientation=T["geometry_msgs/msg/Quaternion"](x=r[3], y=r[4], z=r[5], w=r[6]),
-                )
-                msg = T["geometry_msgs/msg/PoseStamped"](header=header(k, t_p), pose=pose)
-                w.write(c, t_p * 1000, ts.serialize_ros1(msg, "geometry_msgs/msg/PoseStamped"))
-    return path
+
+    if frames:
+        put("/dvs/image_raw", "sensor_msgs/msg/Image", images())
+    if camera is not None:
+        P = np.concatenate([camera.K, np.zeros((3, 1))], axis=1).reshape(-1)
+        roi = T["sensor_msgs/msg/RegionOfInterest"](
+            x_offset=0, y_offset=0, height=0, width=0, do_rectify=False
+        )
+        d, k, r, p = ("d", "k", "r", "p") if ros2 else ("D", "K", "R", "P")
+        info = T["sensor_msgs/msg/CameraInfo"](
+            header=_ros_header(T, ros2, 0, t0_us),
+            height=camera.height,
+            width=camera.width,
+            distortion_model="plumb_bob",
+            binning_x=0,
+            binning_y=0,
+            roi=roi,
+            **{d: np.array([*camera.dist, 0.0]), k: camera.K.reshape(-1), r: np.eye(3).reshape(-1),
+               p: P},
+        )  # fmt: skip
+        put("/dvs/camera_info", "sensor_msgs/msg/CameraInfo", [(t0_us, info)])
+    if poses is not None:
+        put("/optitrack/davis", "geometry_msgs/msg/PoseStamped", pose_msgs())
 
 
 def write_rpg_text(
