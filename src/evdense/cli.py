@@ -300,12 +300,12 @@ def _dataset_name(path) -> str:
 
 
 def _run_reconstruct(args: argparse.Namespace) -> int:
-    import subprocess
     from pathlib import Path
 
     import yaml
 
-    from evdense.config import REPO_ROOT, load_config
+    from evdense.config import load_config
+    from evdense.workflow import run_workflow
 
     rec = Path(args.recording).resolve()
     if not rec.exists():
@@ -320,14 +320,9 @@ def _run_reconstruct(args: argparse.Namespace) -> int:
     cfg_path = out / "config.yaml"
     cfg_path.write_text(yaml.safe_dump(conf, sort_keys=False))
     load_config(cfg_path)  # a bad recording or option fails here, naming the key
-    cmd = [sys.executable, "-m", "snakemake", "-s", str(REPO_ROOT / "Snakefile"), "--directory",
-           str(out), "--configfile", str(cfg_path), "--cores", str(args.cores)]  # fmt: skip
-    if args.dry_run:
-        cmd.append("-n")
-    log.info("running: %s", " ".join(cmd))
-    rc = subprocess.call(cmd)
-    if rc or args.dry_run:
-        return rc
+    ok = run_workflow(cfg_path, out, cores=args.cores, dry_run=args.dry_run)
+    if not ok or args.dry_run:
+        return 0 if ok else 1
     print_products(out / "results", name, rec)
     return 0
 

@@ -23,7 +23,9 @@ def get_logger(name: str | None = None) -> logging.Logger:
 def setup_logging(log_file: str | Path | None = None, level: int = logging.INFO) -> logging.Logger:
     """Send evdense's log records to stderr and, when given, to ``log_file`` (appended).
 
-    Safe to call more than once: earlier handlers installed by this function are replaced.
+    With a ``log_file``, an exception that ends the process is written there too (Snakemake
+    points at a failed job's log file), then shown on stderr as usual. Safe to call more than
+    once: earlier handlers installed by this function are replaced.
     """
     logger = get_logger()
     logger.setLevel(level)
@@ -39,7 +41,24 @@ def setup_logging(log_file: str | Path | None = None, level: int = logging.INFO)
         h._evdense = True  # type: ignore[attr-defined]
         logger.addHandler(h)
     logger.propagate = False
+    if log_file is not None:
+        _log_uncaught_exceptions(logger)
     return logger
+
+
+def _log_uncaught_exceptions(logger: logging.Logger) -> None:
+    shown = getattr(sys.excepthook, "_evdense_shown", sys.excepthook)
+
+    def hook(kind, value, tb) -> None:
+        for h in logger.handlers:
+            if isinstance(h, logging.FileHandler) and getattr(h, "_evdense", False):
+                h.handle(logger.makeRecord(logger.name, logging.CRITICAL, "", 0,
+                                           f"stopped by {kind.__name__}: {value}", None,
+                                           (kind, value, tb)))  # fmt: skip
+        shown(kind, value, tb)
+
+    hook._evdense_shown = shown  # type: ignore[attr-defined]
+    sys.excepthook = hook
 
 
 def progress(
