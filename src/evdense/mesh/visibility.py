@@ -335,21 +335,7 @@ def visibility_mesh(
     vis = [visibility[i] for i in rep]
     cols = colors[rep] if colors is not None else None
 
-    # Lines of sight, capped per point and in all.
-    rng = np.random.default_rng(config.seed)
-    ray_pt, ray_cam = [], []
-    for i, v in enumerate(vis):
-        if len(v) > config.max_views_per_point:
-            v = rng.choice(v, config.max_views_per_point, replace=False)
-        ray_pt.append(np.full(len(v), i))
-        ray_cam.append(np.asarray(v, dtype=np.int64))
-    ray_pt = np.concatenate(ray_pt) if ray_pt else np.zeros(0, np.int64)
-    ray_cam = np.concatenate(ray_cam) if ray_cam else np.zeros(0, np.int64)
-    if len(ray_pt) == 0:
-        raise ValueError("visibility mesher: no point is seen by any camera (no line of sight)")
-    if len(ray_pt) > config.max_rays:
-        keep = np.sort(rng.choice(len(ray_pt), config.max_rays, replace=False))
-        ray_pt, ray_cam = ray_pt[keep], ray_cam[keep]
+    ray_pt, ray_cam = _lines_of_sight(vis, config)
 
     # Tetrahedralise the points plus a box around points and the cameras that matter.
     used_cams = centers[np.unique(ray_cam)]
@@ -394,6 +380,67 @@ def visibility_mesh(
         100.0 * np.mean(end_cell >= 0),
     )
 
+    faces = _cut_surface(tri, pts, facet_w, end_cell, behind, crossed, config)
+    faces = faces[np.all(faces < M, axis=1)]
+    if config.max_face_distance > 0 and len(faces):
+        d, _ = cKDTree(merged).query(merged[faces].mean(axis=1), workers=-1)
+        far = d > config.max_face_distance * spacing
+        if far.any():
+            log.info("dropping %d faces far from every point", int(far.sum()))
+            faces = faces[~far]
+    if len(faces) == 0:
+        raise ValueError("visibility mesher: the graph cut found no surface")
+    used, inv = np.unique(faces, return_inverse=True)
+    mesh = o3d.geometry.TriangleMesh(
+        o3d.utility.Vector3dVector(merged[used]),
+        o3d.utility.Vector3iVector(inv.reshape(-1, 3).astype(np.int32)),
+    )
+    if cols is not None:
+        mesh.vertex_colors = o3d.utility.Vector3dVector(np.clip(cols[used], 0, 1))
+    log.info(
+        "visibility mesh: %d vertices, %d faces (%.1f s in all)",
+        len(used),
+        len(faces),
+        time.monotonic() - t_start,
+    )
+    return mesh
+
+
+def _lines_of_sight(
+    vis: list[np.ndarray], config: VisibilityConfig
+) -> tuple[np.ndarray, np.ndarray]:
+    """Point and camera index of every line of sight, capped per point and in all (seeded)."""
+    rng = np.random.default_rng(config.seed)
+    ray_pt, ray_cam = [], []
+    for i, v in enumerate(vis):
+        if len(v) > config.max_views_per_point:
+            v = rng.choice(v, config.max_views_per_point, replace=False)
+        ray_pt.append(np.full(len(v), i))
+        ray_cam.append(np.asarray(v, dtype=np.int64))
+    ray_pt = np.concatenate(ray_pt) if ray_pt else np.zeros(0, np.int64)
+    ray_cam = np.concatenate(ray_cam) if ray_cam else np.zeros(0, np.int64)
+    if len(ray_pt) == 0:
+        raise ValueError("visibility mesher: no point is seen by any camera (no line of sight)")
+    if len(ray_pt) > config.max_rays:
+        keep = np.sort(rng.choice(len(ray_pt), config.max_rays, replace=False))
+        ray_pt, ray_cam = ray_pt[keep], ray_cam[keep]
+    return ray_pt, ray_cam
+
+
+def _cut_surface(
+    tri: Delaunay,
+    pts: np.ndarray,
+    facet_w: np.ndarray,
+    end_cell: np.ndarray,
+    behind: np.ndarray,
+    crossed: np.ndarray,
+    config: VisibilityConfig,
+) -> np.ndarray:
+    """Label the tetrahedra inside or outside by a minimum s-t cut over the walked lines of sight
+    and return the facets between the two labels, ``(F, 3)`` indices into ``pts``, each oriented
+    away from its inside cell."""
+    S = len(tri.simplices)
+    nbr = tri.neighbors
     # Terminal weights: source = outside, sink = inside.
     src = np.bincount(end_cell[end_cell >= 0], minlength=S).astype(np.float64)
     snk = np.bincount(behind[behind >= 0], minlength=S).astype(np.float64)
@@ -445,26 +492,4 @@ def visibility_mesh(
     n = np.cross(v1 - v0, v2 - v0)
     flip = np.einsum("ij,ij->i", n, pts[opp] - v0) > 0
     faces[flip] = faces[flip][:, [0, 2, 1]]
-    faces = faces[np.all(faces < M, axis=1)]
-    if config.max_face_distance > 0 and len(faces):
-        d, _ = cKDTree(merged).query(merged[faces].mean(axis=1), workers=-1)
-        far = d > config.max_face_distance * spacing
-        if far.any():
-            log.info("dropping %d faces far from every point", int(far.sum()))
-            faces = faces[~far]
-    if len(faces) == 0:
-        raise ValueError("visibility mesher: the graph cut found no surface")
-    used, inv = np.unique(faces, return_inverse=True)
-    mesh = o3d.geometry.TriangleMesh(
-        o3d.utility.Vector3dVector(merged[used]),
-        o3d.utility.Vector3iVector(inv.reshape(-1, 3).astype(np.int32)),
-    )
-    if cols is not None:
-        mesh.vertex_colors = o3d.utility.Vector3dVector(np.clip(cols[used], 0, 1))
-    log.info(
-        "visibility mesh: %d vertices, %d faces (%.1f s in all)",
-        len(used),
-        len(faces),
-        time.monotonic() - t_start,
-    )
-    return mesh
+    return faces
