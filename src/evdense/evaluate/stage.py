@@ -239,6 +239,8 @@ def evaluate_images(frames_dir: Path, gt_dir: Path, conf: EvalConfig) -> dict[st
     return out
 
 
+# Over 80 lines on purpose: the order of the evaluation (SfM, alignment, trajectory, images,
+# geometry), each a call; what remains is which score needs which product and the metrics' shape.
 def evaluate_source(
     gt_dir: str | Path,
     sfm_dir: str | Path,

@@ -128,6 +128,9 @@ def plot_event_rate(path: str | Path, stats: dict[str, Any], title: str = "") ->
     return path
 
 
+# Over 80 lines on purpose: the summary's products in order (rate plot, event frames of chosen
+# windows, space-time plot, summary.json) written into one staging folder that replaces the
+# output only when all are made.
 def summarize_events(
     events_path: str | Path,
     out_dir: str | Path,

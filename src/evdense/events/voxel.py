@@ -435,6 +435,9 @@ def _window_voxels(
         voxel_grid(ev.t, ev.x, ev.y, ev.p, bins, height, width, t0=t0, t1=t1, out=out)
 
 
+# Over 80 lines on purpose: one pass over the windows in batches (read each window's events,
+# bin, write the batch) with progress, inside one HDF5 file written whole or not at all; the
+# binning itself is voxel_grid().
 def make_voxels(
     events_path: str | Path, windows_path: str | Path, out_path: str | Path, conf: VoxelConfig
 ) -> Path:

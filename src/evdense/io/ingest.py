@@ -334,6 +334,8 @@ def ingest_recording(
     return result
 
 
+# Over 80 lines on purpose: one pass over an open recording, events then frames, calibration
+# and GT, into one staged output; the reader must stay open for all of them.
 def _ingest(
     recording: Path,
     events_out: Path,

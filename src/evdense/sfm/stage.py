@@ -286,6 +286,7 @@ def _map(
     return sorted(recs.values(), key=lambda r: r.num_reg_images(), reverse=True)
 
 
+# About 80 lines: the stage's order (frames, features, matching, mapping, model, stats), each a call.
 def run_sfm(
     frames_dir: str | Path,
     out_dir: str | Path,

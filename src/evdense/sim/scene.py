@@ -259,6 +259,8 @@ class _Part:
     uv_unit: str = "metre"
 
 
+# Over 80 lines on purpose: validation of a scene spec key by key, each with its own message
+# naming the key, then the build; read top to bottom it is the spec's documentation.
 def build_scene(spec: dict, dataset: dict, render: RenderConfig, base_dir: Path | None) -> Scene:
     """Validate a scene spec and build the :class:`Scene` (see module docstring for the format)."""
     allowed = {"name", "duration", "shading", "materials", "objects", "trajectory", "description"}

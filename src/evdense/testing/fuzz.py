@@ -55,6 +55,7 @@ def _toy_events(n: int = 3000, w: int = 64, h: int = 48, seed: int = 0):
     return t, x, y, p, w, h
 
 
+# Over 80 lines on purpose: a list of one small recording per format, each a few lines.
 def make_seeds(folder: str | Path, anchors: str | Path | None = None) -> list[Seed]:
     """Write one small recording per format into ``folder`` (plus the anchors' real files)."""
     from evdense.events.container import Events, write_events

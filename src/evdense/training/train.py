@@ -348,6 +348,39 @@ def build_model(conf: TrainConfig, init: bool = True) -> FireNet:
     return net
 
 
+def _train_step(
+    net: FireNet,
+    opt: torch.optim.Optimizer,
+    x: torch.Tensor,
+    y: torch.Tensor,
+    conf: TrainConfig,
+    weights: LossWeights,
+) -> list[dict[str, float]]:
+    """One step on a batch (voxels ``x`` ``(L, N, B, c, c)``, targets ``y``): the network runs
+    from a zero state over the ``L`` windows, one optimizer update per chunk of ``tbptt_length``
+    windows, the state detached between chunks. Returns each chunk's loss terms."""
+    states, out = None, []
+    for c0 in range(0, conf.sequence_length, conf.tbptt_length):
+        preds = []
+        for k in range(c0, c0 + conf.tbptt_length):
+            img, states = net(x[k].contiguous(memory_format=torch.channels_last), states)
+            preds.append(img)
+        loss, terms = reconstruction_loss(
+            torch.stack(preds), y[c0 : c0 + conf.tbptt_length], weights
+        )
+        opt.zero_grad(set_to_none=True)
+        loss.backward()
+        if conf.grad_clip > 0:
+            torch.nn.utils.clip_grad_norm_(net.parameters(), conf.grad_clip)
+        opt.step()
+        states = detach_states(states)
+        out.append(terms)
+    return out
+
+
+# Over 80 lines on purpose: the run's resumable state (step, best loss and step, RNG, time spent)
+# lives in these locals, which save_state() writes and the resume block restores; the step itself
+# is _train_step and the validation validate().
 def train_model(
     conf: TrainConfig,
     data_path: str | Path,
@@ -444,21 +477,7 @@ def train_model(
             g["lr"] = lr
         x, y = train.batch(rng)
         x, y = x.to(dev, non_blocking=True), y.to(dev, non_blocking=True)
-        states = None
-        for c0 in range(0, conf.sequence_length, conf.tbptt_length):
-            preds = []
-            for k in range(c0, c0 + conf.tbptt_length):
-                img, states = net(x[k].contiguous(memory_format=cl), states)
-                preds.append(img)
-            loss, terms = reconstruction_loss(
-                torch.stack(preds), y[c0 : c0 + conf.tbptt_length], weights
-            )
-            opt.zero_grad(set_to_none=True)
-            loss.backward()
-            if conf.grad_clip > 0:
-                torch.nn.utils.clip_grad_norm_(net.parameters(), conf.grad_clip)
-            opt.step()
-            states = detach_states(states)
+        for terms in _train_step(net, opt, x, y, conf, weights):
             for key, v in terms.items():
                 running[key] = running.get(key, 0.0) + v
         step += 1

@@ -18,6 +18,8 @@ from evdense.mesh.views import Views
 log = get_logger("mesh.texture")
 
 
+# Over 80 lines on purpose: one sparse least-squares system (unknowns, seam constraints,
+# regulariser, solve, per-corner corrections), built in order over arrays every step shares.
 def level_seams(
     vertices: np.ndarray,
     faces: np.ndarray,

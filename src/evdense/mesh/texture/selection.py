@@ -17,6 +17,8 @@ def _tedges(g, nodes, cost0: np.ndarray, cost1: np.ndarray) -> None:
     g.add_grid_tedges(nodes, np.maximum(d, 0), np.maximum(-d, 0))
 
 
+# Over 80 lines on purpose: one MRF optimisation by alpha-expansion (initial labels, then per
+# cycle one binary graph cut per view) whose per-face arrays every expansion updates in place.
 def select_views(
     num_faces: int,
     cand: tuple[np.ndarray, np.ndarray, np.ndarray],

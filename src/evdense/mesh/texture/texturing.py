@@ -22,6 +22,9 @@ from evdense.mesh.views import Views
 log = get_logger("mesh.texture")
 
 
+# Over 80 lines on purpose: the texturing steps in order (view selection, corner coordinates,
+# charts and packing, patches, seam levelling, palette), each a few lines of array code over the
+# same per-corner arrays; the heavy parts are their own modules (selection, seams, atlas).
 def texture_mesh_views(
     vertices: np.ndarray, faces: np.ndarray, views: Views, config: TextureConfig | None = None
 ) -> TexturedMesh:
