@@ -40,9 +40,9 @@ ERROR_NAMES = {
 }
 
 
-@njit(cache=True, nogil=True)
 # Over 80 lines on purpose: a numba-compiled single-pass byte parser whose states (skip line,
 # number, field, error) share one cursor; split, it would pass the cursor through every call.
+@njit(cache=True, nogil=True)
 def parse_block(
     buf, t_out, x_out, y_out, p_out, skip_at, skip_count, int_mult, frac_digits
 ):  # pragma: no cover

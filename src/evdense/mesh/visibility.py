@@ -316,25 +316,7 @@ def visibility_mesh(
     """
     config = config or VisibilityConfig()
     t_start = time.monotonic()
-    points = np.asarray(points, dtype=np.float64)
-    seen = np.array([len(v) > 0 for v in visibility], dtype=bool)
-    if not seen.all():
-        # A point no camera saw carries no evidence; in the tetrahedra it would only anchor
-        # surfaces in unobserved space.
-        log.info("dropping %d points seen by no camera", int((~seen).sum()))
-        points = points[seen]
-        visibility = [v for v, s in zip(visibility, seen, strict=True) if s]
-        colors = colors[seen] if colors is not None else None
-    if len(points) < 4:
-        raise ValueError(f"visibility mesher: {len(points)} points, need at least 4")
-    spacing = median_spacing(points)
-    merged, rep = merge_points(points, config.max_points, spacing)
-    if len(merged) < len(points):
-        spacing = median_spacing(merged)
-        log.info("merged %d points to %d (spacing %.4g m)", len(points), len(merged), spacing)
-    vis = [visibility[i] for i in rep]
-    cols = colors[rep] if colors is not None else None
-
+    merged, vis, cols, spacing = _seen_points(points, visibility, colors, config.max_points)
     ray_pt, ray_cam = _lines_of_sight(vis, config)
 
     # Tetrahedralise the points plus a box around points and the cameras that matter.
@@ -352,34 +334,9 @@ def visibility_mesh(
     S = len(tri.simplices)
     log.info("Delaunay: %d points, %d tetrahedra (%.1f s)", len(pts), S, time.monotonic() - t_start)
 
-    # Walk every line of sight from its point back to its camera.
-    p = merged[ray_pt]
-    c = centers[ray_cam]
-    d = c - p
-    length = np.linalg.norm(d, axis=1)
-    ok = length > 1e-9
-    p, c, d, length, ray_pt = p[ok], c[ok], d[ok], length[ok], ray_pt[ok]
-    unit = d / length[:, None]
-    eps = 1e-3 * spacing
-    T, r = _barycentric_transforms(pts, tri.simplices)
-    nbr = tri.neighbors
-    incident = tri.vertex_to_simplex[ray_pt]
-    steps = config.max_walk_steps
-    start = _locate(T, r, nbr, tri.simplices, pts, incident, p + eps * unit, steps)
-    behind = _locate(
-        T, r, nbr, tri.simplices, pts, incident, p - config.inside_distance * spacing * unit, steps
+    facet_w, end_cell, behind, crossed = _walk_lines_of_sight(
+        tri, pts, merged, centers, ray_pt, ray_cam, spacing, config
     )
-    t1 = time.monotonic()
-    facet_w, end_cell, crossed = _walk_rays(
-        T, r, nbr, p, d, start, eps / length, length, config.sigma * spacing, steps
-    )
-    log.info(
-        "walked %d lines of sight (%.1f s; %.1f%% reached their camera)",
-        len(p),
-        time.monotonic() - t1,
-        100.0 * np.mean(end_cell >= 0),
-    )
-
     faces = _cut_surface(tri, pts, facet_w, end_cell, behind, crossed, config)
     faces = faces[np.all(faces < M, axis=1)]
     if config.max_face_distance > 0 and len(faces):
@@ -493,3 +450,78 @@ def _cut_surface(
     flip = np.einsum("ij,ij->i", n, pts[opp] - v0) > 0
     faces[flip] = faces[flip][:, [0, 2, 1]]
     return faces
+
+
+def _walk_lines_of_sight(
+    tri: Delaunay,
+    pts: np.ndarray,
+    merged: np.ndarray,
+    centers: np.ndarray,
+    ray_pt: np.ndarray,
+    ray_cam: np.ndarray,
+    spacing: float,
+    config: VisibilityConfig,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Walk every line of sight from its point back to its camera through the tetrahedra.
+
+    Returns the weight gathered by each cell facet ``(S * 4,)``, the cell where each line ends
+    (its camera's, or -1), the cell just behind each point (-1 when not found) and whether any
+    line crossed each cell.
+    """
+    p = merged[ray_pt]
+    c = centers[ray_cam]
+    d = c - p
+    length = np.linalg.norm(d, axis=1)
+    ok = length > 1e-9
+    p, c, d, length, ray_pt = p[ok], c[ok], d[ok], length[ok], ray_pt[ok]
+    unit = d / length[:, None]
+    eps = 1e-3 * spacing
+    T, r = _barycentric_transforms(pts, tri.simplices)
+    nbr = tri.neighbors
+    incident = tri.vertex_to_simplex[ray_pt]
+    steps = config.max_walk_steps
+    start = _locate(T, r, nbr, tri.simplices, pts, incident, p + eps * unit, steps)
+    behind = _locate(
+        T, r, nbr, tri.simplices, pts, incident, p - config.inside_distance * spacing * unit, steps
+    )
+    t1 = time.monotonic()
+    facet_w, end_cell, crossed = _walk_rays(
+        T, r, nbr, p, d, start, eps / length, length, config.sigma * spacing, steps
+    )
+    log.info(
+        "walked %d lines of sight (%.1f s; %.1f%% reached their camera)",
+        len(p),
+        time.monotonic() - t1,
+        100.0 * np.mean(end_cell >= 0),
+    )
+
+    return facet_w, end_cell, behind, crossed
+
+
+def _seen_points(
+    points: np.ndarray,
+    visibility: list[np.ndarray],
+    colors: np.ndarray | None,
+    max_points: int,
+) -> tuple[np.ndarray, list[np.ndarray], np.ndarray | None, float]:
+    """The points some camera saw, merged down to ``max_points``: points, their visibility and
+    colours, and their median spacing."""
+    points = np.asarray(points, dtype=np.float64)
+    seen = np.array([len(v) > 0 for v in visibility], dtype=bool)
+    if not seen.all():
+        # A point no camera saw carries no evidence; in the tetrahedra it would only anchor
+        # surfaces in unobserved space.
+        log.info("dropping %d points seen by no camera", int((~seen).sum()))
+        points = points[seen]
+        visibility = [v for v, s in zip(visibility, seen, strict=True) if s]
+        colors = colors[seen] if colors is not None else None
+    if len(points) < 4:
+        raise ValueError(f"visibility mesher: {len(points)} points, need at least 4")
+    spacing = median_spacing(points)
+    merged, rep = merge_points(points, max_points, spacing)
+    if len(merged) < len(points):
+        spacing = median_spacing(merged)
+        log.info("merged %d points to %d (spacing %.4g m)", len(points), len(merged), spacing)
+    vis = [visibility[i] for i in rep]
+    cols = colors[rep] if colors is not None else None
+    return merged, vis, cols, spacing
