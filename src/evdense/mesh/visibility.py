@@ -464,16 +464,15 @@ def _walk_lines_of_sight(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Walk every line of sight from its point back to its camera through the tetrahedra.
 
-    Returns the weight gathered by each cell facet ``(S * 4,)``, the cell where each line ends
-    (its camera's, or -1), the cell just behind each point (-1 when not found) and whether any
-    line crossed each cell.
+    Returns the weight gathered by each cell facet ``(S * 4,)``, and per line (lines of zero
+    length left out) the cell where it ends (its camera's, or -1) and the cell just behind its
+    point (-1 when not found); last, whether any line crossed each cell.
     """
     p = merged[ray_pt]
-    c = centers[ray_cam]
-    d = c - p
+    d = centers[ray_cam] - p
     length = np.linalg.norm(d, axis=1)
     ok = length > 1e-9
-    p, c, d, length, ray_pt = p[ok], c[ok], d[ok], length[ok], ray_pt[ok]
+    p, d, length, ray_pt = p[ok], d[ok], length[ok], ray_pt[ok]
     unit = d / length[:, None]
     eps = 1e-3 * spacing
     T, r = _barycentric_transforms(pts, tri.simplices)
@@ -494,7 +493,6 @@ def _walk_lines_of_sight(
         time.monotonic() - t1,
         100.0 * np.mean(end_cell >= 0),
     )
-
     return facet_w, end_cell, behind, crossed
 
 

@@ -200,7 +200,8 @@ class _Scale:
     """Everything needed to score hypotheses of one reference view at one resolution."""
 
     # Over 80 lines on purpose: a straight-line set-up of every tensor the scoring kernels of one
-    # scale read (images, gradients, projections, source depths); no branch worth a function.
+    # scale read (reference image and pixel rays, the sources' image atlas and projections, their
+    # depth atlas, window offsets); no branch worth a function.
     def __init__(
         self,
         ref: StereoView,
