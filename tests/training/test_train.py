@@ -14,7 +14,13 @@ from evdense.recon.inference import NetworkReconstructor
 from evdense.recon.postprocess import standardize_nonzero
 from evdense.training.data import TrainDataConfig, generate_dataset, load_split, simulate_sequence
 from evdense.training.heldout import EvalConfig, evaluate_methods, frame_scores, read_heldout
-from evdense.training.losses import LossWeights, reconstruction_loss, ssim, temporal_consistency
+from evdense.training.losses import (
+    LossWeights,
+    gradient_matching,
+    reconstruction_loss,
+    ssim,
+    temporal_consistency,
+)
 from evdense.training.train import (
     TrainConfig,
     build_model,
@@ -138,6 +144,25 @@ def test_affine_invariant_loss_ignores_gain_and_offset_per_frame():
     _, anchored = reconstruction_loss(pred, target, LossWeights(affine_invariant=True, anchor=0.1))
     assert anchored["loss"] == pytest.approx(0.1 * anchored["raw_l1"], abs=1e-5)
     assert anchored["raw_l1"] == pytest.approx(float((pred - target).abs().mean()))
+
+
+def test_gradient_matching_sees_misplaced_edges_not_offsets():
+    target = torch.zeros(1, 1, 32, 32, dtype=torch.float64)
+    target[..., :, 16:] = 1.0  # a vertical edge
+    assert float(gradient_matching(target + 0.4, target)) == pytest.approx(0.0, abs=1e-12)
+    shifted = torch.zeros_like(target)
+    shifted[..., :, 17:] = 1.0  # the edge one pixel to the right
+    # full resolution: two columns of unit steps differ, 2 * 32 / (32 * 31) in x, none in y
+    assert float(gradient_matching(shifted, target, scales=1)) == pytest.approx(2 / 31)
+    blurred = torch.nn.functional.avg_pool2d(target, 5, stride=1, padding=2, count_include_pad=False)
+    assert float(gradient_matching(blurred, target)) > 0.01
+    # the loss term is off by default and adds its weight times the term when on
+    pred = torch.stack([blurred, blurred])
+    tgt = torch.stack([target, target])
+    _, off = reconstruction_loss(pred, tgt, LossWeights())
+    _, on = reconstruction_loss(pred, tgt, LossWeights(gradient=2.0))
+    assert off["gradient"] == 0.0 and on["gradient"] > 0.01
+    assert on["loss"] == pytest.approx(off["loss"] + 2.0 * on["gradient"], rel=1e-6)
 
 
 def test_window_normalisation_matches_inference():

@@ -92,6 +92,10 @@ class TrainConfig:
     loss_anchor: float = 0.0
     """Weight of a plain L1 on the raw output, which keeps it in the [0, 1] range of the targets
     when loss_affine_invariant is on."""
+    loss_gradient: float = 0.0
+    """Weight of a multi-scale gradient-matching loss (L1 of the differences of horizontal and
+    vertical finite differences at 1, 1/2, 1/4 and 1/8 resolution; on the aligned frames when
+    loss_affine_invariant is on); 0 = off."""
     augment: bool = True
     """Random flips, quarter turns and polarity inversions."""
     augment_rotations: bool = True
@@ -146,6 +150,7 @@ class TrainConfig:
             self.loss_temporal,
             self.loss_affine_invariant,
             self.loss_anchor,
+            self.loss_gradient,
         )
 
 
