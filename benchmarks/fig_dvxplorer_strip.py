@@ -8,7 +8,7 @@ Runs the pipeline's own stage functions on ``anchors/data/dvxplorer_sample.aedat
 111,954 events, a person in front of a wall, camera nearly still): ingest to the canonical event
 file, windows of N events, 5-bin voxel grids (with the stage's default hot-pixel filter, which
 masks this sensor's few dozen hot pixels; before it, our model drew each as a dot in a ring), then
-``reconstruct_frames`` once per method with the stage's default options. Writes a strip (rows: methods, columns: evenly spaced windows) as PNG and
+``run_recon`` once per method with the stage's default options. Writes a strip (rows: methods, columns: evenly spaced windows) as PNG and
 PDF, and prints per method the ms per frame and the mean contrast (standard deviation) of the
 frames, so that an empty or flat reconstruction shows in numbers as well as in the picture.
 """
@@ -33,7 +33,7 @@ from evdense.events.windows import WindowConfig, make_windows
 from evdense.io.ingest import ingest_recording
 from evdense.log import setup_logging
 from evdense.recon.config import ReconstructConfig
-from evdense.recon.inference import reconstruct_frames
+from evdense.recon.stage import run_recon
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -70,7 +70,7 @@ def main() -> None:
         times: list[float] = []
         for name, ckpt in methods.items():
             t0 = time.perf_counter()
-            out = reconstruct_frames(
+            out = run_recon(
                 tmp / "voxels.h5",
                 tmp / name,
                 ReconstructConfig(method=name, checkpoint=ckpt),

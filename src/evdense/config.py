@@ -106,13 +106,17 @@ def load_schema(path: str | Path = SCHEMA_PATH) -> dict:
 
 
 def validate_config(
-    config: dict[str, Any], schema_path: str | Path = SCHEMA_PATH
+    config: dict[str, Any], schema_path: str | Path = SCHEMA_PATH, partial: bool = False
 ) -> dict[str, Any]:
     """Validate ``config`` in place against the schema, filling in defaults; returns it.
 
+    ``partial``: only the sections ``config`` holds are checked (a stage run alone), so the
+    top-level keys the schema requires may be missing.
     Raises :class:`ConfigError` whose message names the offending key path.
     """
     schema = load_schema(schema_path)
+    if partial:
+        schema = {**schema, "required": []}
     errors = sorted(_DefaultsValidator(schema).iter_errors(config), key=lambda e: list(e.path))
     if errors:
         e = errors[0]
@@ -127,6 +131,15 @@ def validate_config(
         raise ConfigError(f"config key '{key}': {msg}")
     sort_keys_in_place(config)
     return config
+
+
+def fill_section(name: str, section: dict[str, Any] | None) -> dict[str, Any]:
+    """The config section ``name`` validated against its part of the schema, with its defaults
+    filled in (a copy): what a stage run alone, outside the workflow, starts from.
+
+    Raises :class:`ConfigError` whose message names the offending key path.
+    """
+    return validate_config({name: copy.deepcopy(section or {})}, partial=True)[name]
 
 
 def sort_keys_in_place(d: dict[str, Any]) -> None:

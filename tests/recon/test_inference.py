@@ -16,9 +16,10 @@ from evdense.events.windows import WindowConfig, make_windows
 from evdense.formats.frames import FrameWriter, to_uint8
 from evdense.recon.checkpoints import load_checkpoint, save_checkpoint
 from evdense.recon.config import ReconstructConfig, resolve_config
-from evdense.recon.inference import NetworkReconstructor, reconstruct_frames
+from evdense.recon.inference import NetworkReconstructor
 from evdense.recon.networks import E2VID, FireNet
 from evdense.recon.postprocess import RobustRescaler, standardize_nonzero, unsharp_mask
+from evdense.recon.stage import run_recon
 
 H, W = 40, 48
 
@@ -134,7 +135,7 @@ def test_stage_writes_frames_and_resets_at_gaps(stream, tmp_path):
     ck = save_checkpoint(net, tmp_path / "net.pt")
     out = tmp_path / "frames" / "mine_n2400_b5"
     conf = ReconstructConfig(method="mine", checkpoint=str(ck), max_gap_s=0.5)
-    assert reconstruct_frames(voxel_path, out, conf, num_threads=1) == out
+    assert run_recon(voxel_path, out, conf, num_threads=1) == out
 
     with VoxelFile(voxel_path) as vf:
         voxels, t_end, t_start = vf.read(), vf.t_end_us, vf.t_start_us
@@ -157,13 +158,25 @@ def test_stage_writes_frames_and_resets_at_gaps(stream, tmp_path):
     carried = NetworkReconstructor(net, voxel_clip=conf.voxel_clip).run(voxels)
     assert np.abs(to_uint8(carried[gap]).astype(int) - frames[gap]).max() > 0
 
+    # the same stage from the command line, the preset named in a config file
+    from evdense.recon.__main__ import main
+
+    cfg = tmp_path / "recon.yaml"
+    cfg.write_text(f"reconstruct:\n  max_gap_s: 0.5\n  checkpoints:\n    mine: {ck}\n")
+    cli_out = tmp_path / "cli_frames"
+    main([str(voxel_path), str(cli_out), "--preset", "mine", "--config", str(cfg), "--threads", "1"])
+    cli_rows, cli_frames = _read_folder(cli_out)
+    np.testing.assert_array_equal(cli_rows, rows)
+    for a, b in zip(cli_frames, frames, strict=True):
+        np.testing.assert_array_equal(a, b)
+
 
 @pytest.mark.parametrize("method", ["highpass", "integrate"])
 def test_baselines_reconstruct_from_events(stream, tmp_path, method):
     events, voxel_path = stream
     out = tmp_path / method
     conf = ReconstructConfig(method=method, cutoff_rad_s=5.0, leak_rad_s=0.0)
-    reconstruct_frames(voxel_path, out, conf, events_path=events)
+    run_recon(voxel_path, out, conf, events_path=events)
     rows, frames = _read_folder(out)
     with VoxelFile(voxel_path) as vf:
         assert len(frames) == vf.num_windows
@@ -182,7 +195,7 @@ def test_complementary_filter_with_conventional_frames(stream, tmp_path):
     (ref / "timestamps.txt").write_text("0 0.0\n1 1.0\n")
     conf = ReconstructConfig(method="highpass", cutoff_rad_s=50.0, use_conventional_frames=True)
     out = tmp_path / "hp"
-    reconstruct_frames(voxel_path, out, conf, events_path=events, reference_frames_dir=ref)
+    run_recon(voxel_path, out, conf, events_path=events, reference_frames_dir=ref)
     _, frames = _read_folder(out)
     # a fast filter forgets the events and follows the reference: left dark, right bright
     last = frames[-1].astype(float)
@@ -195,9 +208,9 @@ def test_bad_inputs_leave_no_output(stream, tmp_path):
     ck = save_checkpoint(net, tmp_path / "b3.pt")
     out = tmp_path / "frames" / "x"
     with pytest.raises(ValueError, match="5 bins"):
-        reconstruct_frames(voxel_path, out, ReconstructConfig(method="x", checkpoint=str(ck)))
+        run_recon(voxel_path, out, ReconstructConfig(method="x", checkpoint=str(ck)))
     with pytest.raises(ValueError, match="events_path"):
-        reconstruct_frames(voxel_path, out, ReconstructConfig(method="highpass"))
+        run_recon(voxel_path, out, ReconstructConfig(method="highpass"))
     assert not out.exists()
     assert not (tmp_path / "frames").exists() or not list((tmp_path / "frames").iterdir())
 

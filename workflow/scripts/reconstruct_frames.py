@@ -8,11 +8,11 @@ os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 from evdense.log import setup_logging  # noqa: E402
 from evdense.recon.config import ReconstructConfig  # noqa: E402
-from evdense.recon.inference import reconstruct_frames  # noqa: E402
+from evdense.recon.stage import run_recon  # noqa: E402
 
 sm = snakemake  # noqa: F821 (injected by Snakemake)
 setup_logging(sm.log[0])
-reconstruct_frames(
+run_recon(
     sm.input.voxels,
     sm.output.frames,
     ReconstructConfig.from_dict(sm.params.conf),

@@ -2,7 +2,8 @@
 
 Submodules: ``networks`` (FireNet, FireNet+, E2VID), ``checkpoints`` (our format and the published
 ones, loaded safely), ``postprocess`` (normalisation, tone mapping, frame folders), ``baselines``
-(integration, high-pass filter), ``config`` (stage options) and ``inference`` (the stage);
+(integration, high-pass filter), ``config`` (stage options), ``inference`` (a network run window by window) and ``stage``
+(the stage function :func:`run_recon`, also ``python -m evdense.recon``);
 training lives in :mod:`evdense.training`. Names are imported lazily, so that
 ``evdense.recon.config`` can be used without importing torch.
 """
@@ -25,7 +26,7 @@ _EXPORTS = {
     "ReconstructConfig": "config",
     "resolve_config": "config",
     "NetworkReconstructor": "inference",
-    "reconstruct_frames": "inference",
+    "run_recon": "stage",
 }
 
 __all__ = sorted(_EXPORTS)
