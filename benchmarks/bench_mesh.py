@@ -41,11 +41,10 @@ from evdense.log import setup_logging
 from evdense.mesh.cleanup import BOUNDARY_MODES, clean_mesh
 from evdense.mesh.geometry import make_scene, project, raycast_view
 from evdense.mesh.poisson import poisson_mesh
-from evdense.mesh.refine import refine_vertices
 from evdense.mesh.stage import MeshConfig
-from evdense.mesh.texture import texture_mesh_views
 from evdense.mesh.views import Views, make_mesh, read_mesh, read_views
 from evdense.mesh.visibility import estimate_visibility, visibility_mesh
+from evdense.refine.photometric import RefineConfig, refine_vertices
 from evdense.testing.mesh_scenes import (
     box_mesh,
     grid_plane,
@@ -54,6 +53,7 @@ from evdense.testing.mesh_scenes import (
     smooth_colour,
     sphere_mesh,
 )
+from evdense.texture import TextureConfig, texture_mesh_views
 
 RELATIVE = (0.0025, 0.005, 0.01, 0.02)
 
@@ -149,14 +149,24 @@ def psnr_held_out(
     }
 
 
-def mesh_config(args) -> MeshConfig:
-    """The default mesh config with this script's overrides."""
-    conf = MeshConfig()
-    conf.refine.max_seconds = args.refine_seconds
+@dataclasses.dataclass
+class StageConfigs:
+    """The default configs of the mesh, refine and texture stages with this script's overrides."""
+
+    mesh: MeshConfig
+    refine: RefineConfig
+    texture: TextureConfig
+
+
+def mesh_config(args) -> StageConfigs:
+    """The default stage configs with this script's overrides."""
+    conf = StageConfigs(
+        MeshConfig(), RefineConfig(max_seconds=args.refine_seconds), TextureConfig()
+    )
     if args.smooth_iterations is not None:
-        conf.cleanup.smooth_iterations = args.smooth_iterations
+        conf.mesh.cleanup.smooth_iterations = args.smooth_iterations
     if args.smooth_boundary is not None:
-        conf.cleanup.smooth_boundary = args.smooth_boundary
+        conf.mesh.cleanup.smooth_boundary = args.smooth_boundary
     return conf
 
 
@@ -194,13 +204,15 @@ def evaluate_all(
 ):
     rows = [geometry_row("dense cloud", pts, gt, None)]
     t = time.monotonic()
-    mesh_p = clean_mesh(poisson_mesh(pts, nrm, conf.poisson, colors, train.centers), conf.cleanup)
+    mesh_p = clean_mesh(
+        poisson_mesh(pts, nrm, conf.mesh.poisson, colors, train.centers), conf.mesh.cleanup
+    )
     rows.append(geometry_row("poisson + clean-up", mesh_p, gt, time.monotonic() - t))
     t = time.monotonic()
-    vis = estimate_visibility(pts, nrm, train, conf.visibility)
+    vis = estimate_visibility(pts, nrm, train, conf.mesh.visibility)
     t_vis = time.monotonic() - t
     mesh_v = clean_mesh(
-        visibility_mesh(pts, vis, train.centers, conf.visibility, colors), conf.cleanup
+        visibility_mesh(pts, vis, train.centers, conf.mesh.visibility, colors), conf.mesh.cleanup
     )
     rows.append(geometry_row("visibility + clean-up", mesh_v, gt, time.monotonic() - t))
     rows[-1]["visibility_estimate_s"] = t_vis

@@ -29,8 +29,8 @@ from evdense.evaluate.align import apply_sim3
 from evdense.evaluate.geometry import evaluate_geometry
 from evdense.evaluate.stage import EvalConfig, _apply_h, gt_reference_samples
 from evdense.mesh.geometry import edges_of
-from evdense.mesh.refine import RefineConfig, refine_vertices
 from evdense.mesh.views import make_mesh, read_mesh, read_views
+from evdense.refine.photometric import RefineConfig, refine_vertices
 
 ROOT = Path(__file__).resolve().parents[1]
 THRESHOLDS = [0.005, 0.01, 0.02]

@@ -40,6 +40,8 @@ SECTIONS: dict[str, str] = {
     "sfm": "evdense.sfm:SfmConfig",
     "evaluate": "evdense.evaluate.stage:EvalConfig",
     "mesh": "evdense.mesh.stage:MeshConfig",
+    "mesh.refine": "evdense.refine.photometric:RefineConfig",
+    "mesh.texture": "evdense.texture.model:TextureConfig",
     "train": "evdense.training.train:TrainConfig",
 }
 """Every config section backed by a dataclass: dotted path -> ``module:Class``."""

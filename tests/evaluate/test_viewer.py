@@ -12,8 +12,8 @@ import open3d as o3d
 import pytest
 
 from evdense.evaluate.viewer import PageView, mesh_entry, write_mesh_page
-from evdense.mesh.texture import TexturedMesh
 from evdense.poses import look_at
+from evdense.texture import TexturedMesh
 
 
 def _checker_box() -> TexturedMesh:

@@ -20,7 +20,7 @@ from evdense.mesh.cleanup import (
 )
 from evdense.mesh.geometry import face_adjacency, face_normals
 from evdense.mesh.poisson import PoissonConfig, poisson_mesh
-from evdense.mesh.stage import MeshConfig, mesh_surface
+from evdense.mesh.stage import MeshConfig, run_mesh
 from evdense.mesh.views import Views, make_mesh, read_mesh, write_workspace
 from evdense.mesh.visibility import (
     estimate_visibility,
@@ -305,7 +305,7 @@ def test_mesh_surface_stage_from_a_workspace(tmp_path, rng):
     o3d.io.write_point_cloud(str(cloud), pcd)
     conf = {"cleanup": {"target_faces": 3000}, "poisson": {"depth": 7}}
     # Estimated visibility (no .vis file).
-    out = mesh_surface(cloud, ws, tmp_path / "vis" / "mesh.ply", "visibility", conf)
+    out = run_mesh(cloud, ws, tmp_path / "vis" / "mesh.ply", "visibility", conf)
     m = read_mesh(out)
     assert 2000 < len(m.triangles) <= 3000 and m.has_vertex_colors()
     r = np.linalg.norm(np.asarray(m.vertices), axis=1)
@@ -316,25 +316,25 @@ def test_mesh_surface_stage_from_a_workspace(tmp_path, rng):
     back = read_vis_file(str(cloud) + ".vis")
     assert all(np.array_equal(a, b) for a, b in zip(vis, back, strict=True))
     assert read_cloud(cloud).visibility is not None
-    out_vis = out = mesh_surface(cloud, ws, tmp_path / "vis2" / "mesh.ply", "visibility", conf)
+    out_vis = out = run_mesh(cloud, ws, tmp_path / "vis2" / "mesh.ply", "visibility", conf)
     assert np.abs(np.linalg.norm(np.asarray(read_mesh(out).vertices), axis=1) - 1).mean() < 0.01
-    out = mesh_surface(cloud, ws, tmp_path / "poisson" / "mesh.ply", "poisson", conf)
+    out = run_mesh(cloud, ws, tmp_path / "poisson" / "mesh.ply", "poisson", conf)
     assert np.abs(np.linalg.norm(np.asarray(read_mesh(out).vertices), axis=1) - 1).mean() < 0.01
     # the same stage from the command line (python -m evdense.mesh), with a config file
     from evdense.mesh.__main__ import main
 
     (tmp_path / "c.yaml").write_text(yaml.safe_dump({"mesh": conf}))
-    main(["--config", str(tmp_path / "c.yaml"), "surface", str(ws), str(tmp_path / "cli.ply")])
+    main(["--config", str(tmp_path / "c.yaml"), str(ws), str(tmp_path / "cli.ply")])
     assert (tmp_path / "cli.ply").read_bytes() == out_vis.read_bytes()
     assert not list(tmp_path.rglob("*.partial*"))
     # Bad inputs name the file.
     with pytest.raises(ValueError, match="nothing.ply"):
-        mesh_surface(tmp_path / "nothing.ply", ws, tmp_path / "x.ply", "visibility", conf)
+        run_mesh(tmp_path / "nothing.ply", ws, tmp_path / "x.ply", "visibility", conf)
     with pytest.raises(ValueError, match="sparse"):
-        mesh_surface(cloud, tmp_path, tmp_path / "x.ply", "visibility", conf)
+        run_mesh(cloud, tmp_path, tmp_path / "x.ply", "visibility", conf)
     with pytest.raises(ValueError, match="method"):
-        mesh_surface(cloud, ws, tmp_path / "x.ply", "marching", conf)
+        run_mesh(cloud, ws, tmp_path / "x.ply", "marching", conf)
     write_vis_file(str(cloud) + ".vis", [np.array([99])] * len(pts))
     with pytest.raises(ValueError, match="registered views"):
-        mesh_surface(cloud, ws, tmp_path / "x.ply", "visibility", conf)
+        run_mesh(cloud, ws, tmp_path / "x.ply", "visibility", conf)
     assert not (tmp_path / "x.ply").exists()

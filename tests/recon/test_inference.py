@@ -164,7 +164,9 @@ def test_stage_writes_frames_and_resets_at_gaps(stream, tmp_path):
     cfg = tmp_path / "recon.yaml"
     cfg.write_text(f"reconstruct:\n  max_gap_s: 0.5\n  checkpoints:\n    mine: {ck}\n")
     cli_out = tmp_path / "cli_frames"
-    main([str(voxel_path), str(cli_out), "--preset", "mine", "--config", str(cfg), "--threads", "1"])
+    main(
+        [str(voxel_path), str(cli_out), "--preset", "mine", "--config", str(cfg), "--threads", "1"]
+    )
     cli_rows, cli_frames = _read_folder(cli_out)
     np.testing.assert_array_equal(cli_rows, rows)
     for a, b in zip(cli_frames, frames, strict=True):

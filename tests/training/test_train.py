@@ -154,7 +154,9 @@ def test_gradient_matching_sees_misplaced_edges_not_offsets():
     shifted[..., :, 17:] = 1.0  # the edge one pixel to the right
     # full resolution: two columns of unit steps differ, 2 * 32 / (32 * 31) in x, none in y
     assert float(gradient_matching(shifted, target, scales=1)) == pytest.approx(2 / 31)
-    blurred = torch.nn.functional.avg_pool2d(target, 5, stride=1, padding=2, count_include_pad=False)
+    blurred = torch.nn.functional.avg_pool2d(
+        target, 5, stride=1, padding=2, count_include_pad=False
+    )
     assert float(gradient_matching(blurred, target)) > 0.01
     # the loss term is off by default and adds its weight times the term when on
     pred = torch.stack([blurred, blurred])

@@ -1,4 +1,4 @@
-# Mesh, refinement and texture (src/evdense/mesh/): the fused cloud of a dense workspace
+# Mesh, refinement and texture (src/evdense/mesh/, refine/, texture/): the fused cloud of a dense workspace
 # results/{dataset}/mvs/{source}/ -> mesh.ply (poisson | visibility) -> refined.ply -> textured/.
 # The workspace folder (sparse/, images/) is not a declared output of run_mvs; fused.ply stands
 # for it, and the scripts read the cameras and images next to it.
@@ -62,7 +62,7 @@ rule refine_mesh:
         method="poisson|visibility",
     threads: 1
     params:
-        conf=lambda w: mesh_sections("refine"),
+        conf=lambda w: config["mesh"]["refine"],
     script:
         "../scripts/refine_mesh.py"
 
@@ -87,6 +87,6 @@ rule texture_mesh:
         method="poisson|visibility",
     threads: 1
     params:
-        conf=lambda w: mesh_sections("texture"),
+        conf=lambda w: config["mesh"]["texture"],
     script:
         "../scripts/texture_mesh.py"

@@ -2,19 +2,14 @@
 
 from pathlib import Path
 
+from evdense.formats.status import is_failed, write_empty_products
 from evdense.log import setup_logging
-from evdense.mesh.stage import MeshConfig, mesh_surface, upstream_failed, write_empty_outputs
+from evdense.mesh.stage import run_mesh
 
 sm = snakemake  # noqa: F821 (injected by Snakemake)
 setup_logging(sm.log[0])
-if upstream_failed(sm.input.cloud):  # SfM recorded a failure: empty products
-    write_empty_outputs(list(sm.output))
+cloud = Path(sm.input.cloud)
+if is_failed(cloud.parent):  # SfM recorded a failure: empty products
+    write_empty_products(list(sm.output))
 else:
-    cloud = Path(sm.input.cloud)
-    mesh_surface(
-        cloud,
-        cloud.parent,
-        sm.output.mesh,
-        sm.wildcards.method,
-        MeshConfig.from_dict(sm.params.conf),
-    )
+    run_mesh(cloud, cloud.parent, sm.output.mesh, sm.wildcards.method, sm.params.conf)

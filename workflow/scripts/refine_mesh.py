@@ -2,20 +2,21 @@
 
 from pathlib import Path
 
+from evdense.formats.status import is_failed, write_empty_products
 from evdense.log import setup_logging
-from evdense.mesh.stage import MeshConfig, refine_mesh, upstream_failed, write_empty_outputs
+from evdense.refine.stage import run_refine
 
 sm = snakemake  # noqa: F821 (injected by Snakemake)
 setup_logging(sm.log[0])
-cloud = Path(sm.input.cloud)
-if upstream_failed(sm.input.cloud):  # SfM recorded a failure: empty products
-    write_empty_outputs(list(sm.output))
+workspace = Path(sm.input.cloud).parent
+if is_failed(workspace):  # SfM recorded a failure: empty products
+    write_empty_products(list(sm.output))
 else:
-    refine_mesh(
+    run_refine(
         sm.input.mesh,
-        Path(sm.input.cloud).parent,
+        workspace,
         sm.output.mesh,
-        MeshConfig.from_dict(sm.params.conf),
+        sm.params.conf,
         stats=sm.output.stats,
         threads=sm.threads,
     )

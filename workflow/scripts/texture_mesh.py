@@ -2,18 +2,14 @@
 
 from pathlib import Path
 
+from evdense.formats.status import is_failed, write_empty_products
 from evdense.log import setup_logging
-from evdense.mesh.stage import MeshConfig, texture_mesh, upstream_failed, write_empty_outputs
+from evdense.texture.stage import run_texture
 
 sm = snakemake  # noqa: F821 (injected by Snakemake)
 setup_logging(sm.log[0])
-cloud = Path(sm.input.cloud)
-if upstream_failed(sm.input.cloud):  # SfM recorded a failure: empty products
-    write_empty_outputs(list(sm.output))
+workspace = Path(sm.input.cloud).parent
+if is_failed(workspace):  # SfM recorded a failure: empty products
+    write_empty_products(list(sm.output))
 else:
-    texture_mesh(
-        sm.input.mesh,
-        Path(sm.input.cloud).parent,
-        Path(sm.output.obj).parent,
-        MeshConfig.from_dict(sm.params.conf),
-    )
+    run_texture(sm.input.mesh, workspace, Path(sm.output.obj).parent, sm.params.conf)

@@ -238,7 +238,7 @@ def make_dataset_figures(
 def _reconstructions(dataset, out_dir, sources, loaded, gt, gt_mesh, camera, conf) -> list[Path]:
     """Figs. 8-9: the textured refined mesh and the dense cloud of each source, same viewpoints."""
     from evdense.evaluate.rendering import render_mesh, render_points, render_textured
-    from evdense.mesh.texture import read_textured_mesh
+    from evdense.texture import read_textured_mesh
 
     rows: list[tuple[str, list[tuple[str, np.ndarray | None]]]] = []
     gt_views = None
@@ -362,7 +362,7 @@ def _prf_curves(out_dir, loaded, conf) -> list[Path]:
 def _mesh_page(dataset, page, sources, loaded, gt, camera) -> Path:
     """The page of textured meshes, turned together when they share the GT frame."""
     from evdense.evaluate.viewer import PageView, mesh_entry, write_mesh_page
-    from evdense.mesh.texture import read_textured_mesh
+    from evdense.texture import read_textured_mesh
 
     entries, views = [], {}
     for name, files in sources.items():

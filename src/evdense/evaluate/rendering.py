@@ -12,7 +12,7 @@ import open3d as o3d
 
 from evdense.camera import Camera
 from evdense.mesh.geometry import camera_rays, cast_rays, make_scene, project, raycast_view
-from evdense.mesh.texture import TexturedMesh
+from evdense.texture import TexturedMesh
 
 SHADINGS = ("lambert", "normals", "vertex_colors", "depth")
 

@@ -528,8 +528,8 @@ def evaluate_textured(
     from evdense.camera import load_camera
     from evdense.evaluate.images import log_reference
     from evdense.evaluate.rendering import render_textured
-    from evdense.mesh.texture import read_textured_mesh
     from evdense.sim.groundtruth import render_gt_intensity
+    from evdense.texture import read_textured_mesh
 
     tm = read_textured_mesh(obj_path)
     s, R, t = sim3

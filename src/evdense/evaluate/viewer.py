@@ -19,7 +19,7 @@ import numpy as np
 
 from evdense.formats.files import write_text_atomic
 from evdense.log import get_logger
-from evdense.mesh.texture import TexturedMesh
+from evdense.texture import TexturedMesh
 
 log = get_logger("viewer")
 

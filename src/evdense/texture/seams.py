@@ -12,10 +12,10 @@ from evdense.mesh.geometry import (
     project,
     sample_bilinear,
 )
-from evdense.mesh.texture.model import TextureConfig
 from evdense.mesh.views import Views
+from evdense.texture.model import TextureConfig
 
-log = get_logger("mesh.texture")
+log = get_logger("texture")
 
 
 # Over 80 lines on purpose: one sparse least-squares system (unknowns, seam constraints,

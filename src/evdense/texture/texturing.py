@@ -12,14 +12,14 @@ from evdense.mesh.geometry import (
     project,
     sample_bilinear,
 )
-from evdense.mesh.texture.atlas import face_charts, layout, rasterise
-from evdense.mesh.texture.candidates import view_candidates
-from evdense.mesh.texture.model import TextureConfig, TexturedMesh
-from evdense.mesh.texture.seams import level_seams
-from evdense.mesh.texture.selection import select_views
 from evdense.mesh.views import Views
+from evdense.texture.atlas import face_charts, layout, rasterise
+from evdense.texture.candidates import view_candidates
+from evdense.texture.model import TextureConfig, TexturedMesh
+from evdense.texture.seams import level_seams
+from evdense.texture.selection import select_views
 
-log = get_logger("mesh.texture")
+log = get_logger("texture")
 
 
 # Over 80 lines on purpose: the texturing steps in order (view selection, corner coordinates,

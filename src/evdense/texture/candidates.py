@@ -11,8 +11,8 @@ from evdense.mesh.geometry import (
     project,
     raycast_view,
 )
-from evdense.mesh.texture.model import TextureConfig
 from evdense.mesh.views import Views
+from evdense.texture.model import TextureConfig
 
 
 # --- 1. candidates ----------------------------------------------------------------------------

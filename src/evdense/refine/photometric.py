@@ -36,7 +36,7 @@ from evdense.mesh.geometry import (
 )
 from evdense.mesh.views import Views
 
-log = get_logger("mesh.refine")
+log = get_logger("refine")
 
 
 @dataclass

@@ -7,7 +7,7 @@ import numpy as np
 
 from evdense.log import get_logger
 
-log = get_logger("mesh.texture")
+log = get_logger("texture")
 
 
 # --- 2. view selection ------------------------------------------------------------------------

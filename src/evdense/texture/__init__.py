@@ -15,21 +15,24 @@
    varies smoothly inside each chart; it is rasterised into the atlas.
 5. Faces no view sees get a flat colour (the mean of their vertices' colours) from a palette.
 
-Export: OBJ + MTL + PNG, and a vertex-coloured PLY.
+Export: OBJ + MTL + PNG, a vertex-coloured PLY and a GLB. The stage function is
+:func:`~evdense.texture.stage.run_texture` (``python -m evdense.texture``).
 """
 
-from evdense.mesh.texture.atlas import face_charts, shelf_pack
-from evdense.mesh.texture.candidates import view_candidates
-from evdense.mesh.texture.export import read_textured_mesh, write_glb, write_textured_mesh
-from evdense.mesh.texture.model import TextureConfig, TexturedMesh
-from evdense.mesh.texture.selection import select_views
-from evdense.mesh.texture.texturing import texture_mesh_views
+from evdense.texture.atlas import face_charts, shelf_pack
+from evdense.texture.candidates import view_candidates
+from evdense.texture.export import read_textured_mesh, write_glb, write_textured_mesh
+from evdense.texture.model import TextureConfig, TexturedMesh
+from evdense.texture.selection import select_views
+from evdense.texture.stage import run_texture
+from evdense.texture.texturing import texture_mesh_views
 
 __all__ = [
     "TextureConfig",
     "TexturedMesh",
     "face_charts",
     "read_textured_mesh",
+    "run_texture",
     "select_views",
     "shelf_pack",
     "texture_mesh_views",

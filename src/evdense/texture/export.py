@@ -9,8 +9,8 @@ import numpy as np
 import open3d as o3d
 
 from evdense.formats.files import atomic_path
-from evdense.mesh.texture.model import TexturedMesh
 from evdense.mesh.views import write_png
+from evdense.texture.model import TexturedMesh
 
 
 # --- export -----------------------------------------------------------------------------------

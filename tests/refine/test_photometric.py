@@ -11,10 +11,10 @@ import open3d as o3d
 import pytest
 
 from evdense.camera import Camera
-from evdense.mesh.refine import RefineConfig, refine_vertices, select_pairs
-from evdense.mesh.stage import refine_mesh
 from evdense.mesh.views import make_mesh, read_mesh, write_workspace
 from evdense.poses import look_at
+from evdense.refine.photometric import RefineConfig, refine_vertices, select_pairs
+from evdense.refine.stage import run_refine
 from evdense.testing.mesh_scenes import grid_plane, make_views, smooth_colour
 
 CAM = Camera(80, 80, 70.0, 70.0, 39.5, 39.5)
@@ -120,11 +120,11 @@ def test_refine_mesh_stage(tmp_path, plane):
     write_workspace(ws, views)
     src = tmp_path / "mesh.ply"
     o3d.io.write_triangle_mesh(str(src), make_mesh(bumped(v, seed=1), f))
-    out = refine_mesh(
+    out = run_refine(
         src,
         ws,
         tmp_path / "refined.ply",
-        {"refine": {"scales": [0.5], "iterations": 20}},
+        {"scales": [0.5], "iterations": 20},
         stats=tmp_path / "refined.json",
         threads=1,
     )
@@ -136,4 +136,4 @@ def test_refine_mesh_stage(tmp_path, plane):
         < np.abs(np.asarray(read_mesh(src).vertices)[INNER(v), 2]).mean()
     )
     with pytest.raises(ValueError, match="sparse"):
-        refine_mesh(src, tmp_path, tmp_path / "x.ply")
+        run_refine(src, tmp_path, tmp_path / "x.ply")

@@ -13,15 +13,6 @@ from scipy.ndimage import binary_erosion
 from evdense.camera import Camera
 from evdense.evaluate.rendering import depth_map, render_mesh, render_points, render_textured
 from evdense.mesh.geometry import face_adjacency, face_normals
-from evdense.mesh.stage import texture_mesh
-from evdense.mesh.texture import (
-    TextureConfig,
-    read_textured_mesh,
-    select_views,
-    texture_mesh_views,
-    view_candidates,
-    write_textured_mesh,
-)
 from evdense.mesh.views import make_mesh, read_views, write_workspace
 from evdense.poses import look_at
 from evdense.testing.mesh_scenes import (
@@ -31,6 +22,15 @@ from evdense.testing.mesh_scenes import (
     render_colour,
     sphere_mesh,
 )
+from evdense.texture import (
+    TextureConfig,
+    read_textured_mesh,
+    select_views,
+    texture_mesh_views,
+    view_candidates,
+    write_textured_mesh,
+)
+from evdense.texture.stage import run_texture
 
 BASE = np.array(
     [
@@ -183,7 +183,7 @@ def test_export_round_trip_and_stage(tmp_path, cube):
     np.testing.assert_allclose(back_views.poses, views.poses, atol=1e-9)
     mesh_path = tmp_path / "mesh.ply"
     o3d.io.write_triangle_mesh(str(mesh_path), make_mesh(v, f))
-    out = texture_mesh(mesh_path, ws, tmp_path / "textured", {"texture": {"smoothness": 0.5}})
+    out = run_texture(mesh_path, ws, tmp_path / "textured", {"smoothness": 0.5})
     assert {p.name for p in out.iterdir()} == {
         "mesh.obj",
         "mesh.mtl",
@@ -199,8 +199,15 @@ def test_export_round_trip_and_stage(tmp_path, cube):
     # through the disk as good as in memory (a half-pixel camera error costs several dB here)
     assert interior_psnr(img, gt, mask) > interior_psnr(a, gt, mask) - 0.5
     assert not (tmp_path / "textured.partial").exists()
+    # the same stage from the command line (python -m evdense.texture), with a config file
+    from evdense.texture.__main__ import main
+
+    (tmp_path / "c.yaml").write_text("mesh:\n  texture:\n    smoothness: 0.5\n")
+    main(["--config", str(tmp_path / "c.yaml"), str(ws), str(mesh_path), str(tmp_path / "cli")])
+    for name in ("mesh.obj", "mesh_texture.png", "texture.json"):
+        assert (tmp_path / "cli" / name).read_bytes() == (out / name).read_bytes(), name
     with pytest.raises(ValueError, match="nothing.ply"):
-        texture_mesh(tmp_path / "nothing.ply", ws, tmp_path / "t2")
+        run_texture(tmp_path / "nothing.ply", ws, tmp_path / "t2")
 
 
 def test_renders_of_mesh_and_cloud():
