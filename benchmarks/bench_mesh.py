@@ -16,7 +16,7 @@ diagonal), noisy normals (10 degrees) and uniform outliers (``--outliers``). The
 
 Real pipeline (``--workspace results/{d}/mvs/{source} --gt-dir results/{d}/gt``): the same steps
 on a dense workspace whose world frame is the GT frame (source ``oracle``; other sources need a
-Sim(3) alignment first, which evaluate_source does), holding out every ``--holdout-every``-th view
+Sim(3) alignment first, which the evaluation stage does), holding out every ``--holdout-every``-th view
 from texturing and rendering it against that view's image.
 
     PYTHONPATH=src .venv/bin/python benchmarks/bench_mesh.py [--points 150000] [--noise 0.002]

@@ -25,9 +25,9 @@ import numpy as np
 import open3d as o3d
 import yaml
 
-from evdense.evaluate.align import apply_sim3
-from evdense.evaluate.geometry import evaluate_geometry
-from evdense.evaluate.stage import EvalConfig, _apply_h, gt_reference_samples
+from evdense.evaluate.align import apply_h, apply_sim3
+from evdense.evaluate.config import EvalConfig
+from evdense.evaluate.geometry import evaluate_geometry, gt_reference_samples
 from evdense.mesh.geometry import edges_of
 from evdense.mesh.views import make_mesh, read_mesh, read_views
 from evdense.refine.photometric import RefineConfig, refine_vertices
@@ -42,7 +42,7 @@ def scored(vertices: np.ndarray, faces: np.ndarray, metrics: dict, gt: o3d.geome
     evaluation found (``metrics``: Sim(3) then ICP), at ``thresholds`` (fractions of the diagonal)."""
     a = metrics["alignment"]
     v = apply_sim3(a["scale"], np.array(a["R"]), np.array(a["t"]), vertices)
-    mesh = make_mesh(_apply_h(np.array(a["icp"]), v), faces)
+    mesh = make_mesh(apply_h(np.array(a["icp"]), v), faces)
     conf = EvalConfig()
     g = evaluate_geometry(
         mesh, gt, thresholds, conf.num_samples, conf.crop_margin, gt_samples=gt_samples

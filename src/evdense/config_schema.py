@@ -38,7 +38,7 @@ SECTIONS: dict[str, str] = {
     "mvs": "evdense.mvs.stage:MVSConfig",
     "mvs.oracle": "evdense.mvs.oracle:OracleConfig",
     "sfm": "evdense.sfm:SfmConfig",
-    "evaluate": "evdense.evaluate.stage:EvalConfig",
+    "evaluate": "evdense.evaluate.config:EvalConfig",
     "mesh": "evdense.mesh.stage:MeshConfig",
     "mesh.refine": "evdense.refine.photometric:RefineConfig",
     "mesh.texture": "evdense.texture.model:TextureConfig",

@@ -8,6 +8,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from evdense.camera import Camera
+from evdense.evaluate.align import refine_with_icp, truncated_cost
 from evdense.evaluate.geometry import (
     evaluate_geometry,
     observed_surface_samples,
@@ -15,7 +16,6 @@ from evdense.evaluate.geometry import (
     surface_distance,
 )
 from evdense.evaluate.images import image_metrics
-from evdense.evaluate.stage import refine_with_icp, truncated_cost
 from evdense.evaluate.trajectory_errors import evaluate_trajectory
 from evdense.poses import read_tum
 

@@ -10,7 +10,9 @@ import imageio.v3 as iio
 import numpy as np
 import pytest
 
-from evdense.evaluate.stage import EvalConfig, evaluate_against_reference, evaluate_source
+from evdense.evaluate.config import EvalConfig
+from evdense.evaluate.images import evaluate_against_reference
+from evdense.evaluate.stage import run_evaluate
 from evdense.poses import look_at, write_tum
 
 
@@ -65,7 +67,7 @@ def test_recording_without_gt_surface_scores_its_trajectory(tmp_path):
     est[:, :3, 3] = 3 * est[:, :3, 3] + np.array([1.0, 2.0, 3.0])
     write_tum(sfm / "trajectory.txt", t[::3], est)
     (sfm / "stats.json").write_text(json.dumps({"num_registered": 10, "num_selected": 10}))
-    out = evaluate_source(gt, sfm, tmp_path / "m.json", labels={"dataset": "rec"})
+    out = run_evaluate(gt, sfm, tmp_path / "m.json", labels={"dataset": "rec"})
     assert out["geometry"] == {} and "images" not in out
     assert out["trajectory"]["ate_rmse"] == pytest.approx(0.0, abs=1e-6)
     assert out["trajectory"]["scale"] == pytest.approx(1 / 3)
@@ -76,7 +78,7 @@ def test_recording_without_gt_surface_scores_its_trajectory(tmp_path):
     np.testing.assert_allclose(moved, poses[::3, :3, 3], atol=1e-6)
     # a failed SfM is recorded as failed, with no trajectory
     (sfm / "stats.json").write_text(json.dumps({"failed": True, "error": "2 of 10 registered"}))
-    out = evaluate_source(gt, sfm, tmp_path / "m2.json")
+    out = run_evaluate(gt, sfm, tmp_path / "m2.json")
     assert out["failed"] and "trajectory" not in out
 
 

@@ -250,7 +250,8 @@ def test_missing_frame_raises_before_any_map(tmp_path):
 
 
 def test_a_workspace_made_from_other_inputs_is_not_resumed(tmp_path):
-    from evdense.mvs.stage import MVSConfig, discard_stale_workspace, input_fingerprint
+    from evdense.mvs.stage import MVSConfig
+    from evdense.mvs.workspace import discard_stale_workspace, input_fingerprint
 
     sparse, images, out = tmp_path / "sparse", tmp_path / "frames", tmp_path / "mvs"
     sparse.mkdir()

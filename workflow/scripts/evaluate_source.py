@@ -1,11 +1,11 @@
-"""Adapter: rule evaluate_source -> evdense.evaluate.stage.evaluate_source."""
+"""Adapter: rule evaluate_source -> evdense.evaluate.stage.run_evaluate."""
 
-from evdense.evaluate.stage import evaluate_source
+from evdense.evaluate.stage import run_evaluate
 from evdense.log import setup_logging
 
 setup_logging(snakemake.log[0])
 inp = snakemake.input
-evaluate_source(
+run_evaluate(
     gt_dir=inp.gt,
     sfm_dir=inp.sfm,
     out_path=snakemake.output.metrics,

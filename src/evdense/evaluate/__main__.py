@@ -16,10 +16,10 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--mesh", action="append", default=[], metavar="NAME=PATH",
                     help="a mesh to score, e.g. refined=.../refined.ply (repeatable)")  # fmt: skip
     args = parse(ap, argv)
-    from evdense.evaluate.stage import evaluate_source
+    from evdense.evaluate.stage import run_evaluate
 
     meshes = dict(m.split("=", 1) for m in args.mesh)
-    evaluate_source(args.gt_dir, args.sfm_dir, args.out, args.frames, args.dense, meshes,
+    run_evaluate(args.gt_dir, args.sfm_dir, args.out, args.frames, args.dense, meshes,
                     config_section(args))  # fmt: skip
 
 

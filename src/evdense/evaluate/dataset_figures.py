@@ -182,7 +182,7 @@ def make_dataset_figures(
     """Every picture of one dataset into ``out_dir`` (PNG + PDF), and the mesh page ``page``."""
     import time
 
-    from evdense.evaluate.stage import EvalConfig
+    from evdense.evaluate.config import EvalConfig
 
     t0 = time.monotonic()
     out_dir = Path(out_dir)

@@ -23,10 +23,17 @@ from __future__ import annotations
 
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import open3d as o3d
 from scipy.spatial import cKDTree
+
+from evdense.evaluate.config import EvalConfig
+from evdense.log import get_logger
+from evdense.poses import read_tum
+
+log = get_logger("evaluate")
 
 
 @dataclass
@@ -256,3 +263,40 @@ def evaluate_geometry(
         fscore=f,
         curve=curve,
     )
+
+
+def gt_reference_samples(
+    gt_dir: Path, gt_mesh: o3d.geometry.TriangleMesh, conf: EvalConfig
+) -> tuple[np.ndarray | None, dict[str, Any]]:
+    """The GT points completeness is measured on, and a description of them for the metrics file.
+
+    ``observed``: :func:`~evdense.evaluate.geometry.observed_surface_samples` from
+    ``visibility_views`` GT cameras evenly spaced in time over ``gt_dir/trajectory.txt``;
+    ``full``: None (the whole surface, sampled by :func:`evaluate_geometry`).
+    """
+    if conf.completeness_reference == "full":
+        return None, {"kind": "full", "num_samples": conf.num_samples}
+    from evdense.camera import load_camera
+    from evdense.poses import interpolate_poses
+
+    t_gt, T_gt = read_tum(gt_dir / "trajectory.txt")
+    times = np.linspace(t_gt.min(), t_gt.max(), conf.visibility_views)
+    _, poses = interpolate_poses(times, t_gt, T_gt)
+    cam = load_camera(gt_dir / "intrinsics.yaml")
+    pts, frac = observed_surface_samples(
+        gt_mesh, cam, poses, conf.num_samples, conf.visibility_min_views, seed=1
+    )
+    if len(pts) == 0:
+        raise ValueError(f"{gt_dir}: the GT cameras see no part of the GT mesh")
+    log.info(
+        "observed GT surface: %.1f%% of the mesh area (%d samples, >= %d of %d views)",
+        100 * frac, len(pts), conf.visibility_min_views, conf.visibility_views,
+    )  # fmt: skip
+    info = {
+        "kind": "observed",
+        "num_samples": len(pts),
+        "observed_area_fraction": frac,
+        "views": conf.visibility_views,
+        "min_views": conf.visibility_min_views,
+    }
+    return pts, info

@@ -12,127 +12,34 @@ intensity rendered at their timestamps.
 from __future__ import annotations
 
 import json
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import open3d as o3d
 
-from evdense.config import section_from_dict
-from evdense.evaluate.align import align_trajectory_to_gt, apply_sim3
+from evdense.evaluate.align import (
+    align_trajectory_to_gt,
+    alignment_record,
+    apply_h,
+    apply_sim3,
+    refine_with_icp,
+)
+from evdense.evaluate.config import EvalConfig
 from evdense.evaluate.geometry import (
     bbox_diagonal,
     evaluate_geometry,
-    observed_surface_samples,
-    sample_surface,
+    gt_reference_samples,
 )
-from evdense.evaluate.images import compare_to_gt
+from evdense.evaluate.images import evaluate_against_reference, evaluate_images, evaluate_textured
 from evdense.evaluate.trajectory_errors import evaluate_trajectory
 from evdense.formats.cloud import read_cloud
 from evdense.formats.files import write_json_atomic
-from evdense.formats.frames import frame_paths_and_times
 from evdense.log import get_logger
 from evdense.poses import read_tum
 
 log = get_logger("evaluate")
-
-
-@dataclass
-class EvalConfig:
-    """Settings of the evaluation (config section ``evaluate``)."""
-
-    relative_thresholds: list[float] = field(default_factory=lambda: [0.0025, 0.005, 0.01, 0.02])
-    """Distance thresholds of precision, recall and F-score, as fractions of the GT bounding-box
-    diagonal."""
-    default_threshold: float = 0.01
-    """The threshold (one of the above) reported as *the* F-score in tables and plots."""
-    curve_thresholds: list[float] = field(
-        default_factory=lambda: [round(float(r), 6) for r in np.geomspace(0.001, 0.05, 23)]
-    )
-    """Thresholds (fractions of the GT diagonal) of the precision/recall/F curves stored beside
-    the scores (``geometry.<product>.curve``) and drawn in ``prf_vs_threshold``."""
-    num_samples: int = 200_000
-    """GT surface samples for completeness (and samples of each reconstructed mesh)."""
-    completeness_reference: str = "observed"
-    """GT surface that completeness (recall) is measured on: observed (the part seen by at least
-    visibility_min_views of visibility_views GT cameras spread along the whole trajectory, the same
-    for every image source of a dataset) or full (the whole GT mesh, walls never looked at
-    included)."""
-    visibility_views: int = 60
-    """GT cameras, evenly spaced in time along the trajectory, that define the observed surface."""
-    visibility_min_views: int = 2
-    """A GT surface point is observed when at least this many of those cameras see it (unoccluded,
-    in the image)."""
-    crop_margin: float = 0.02
-    """Reconstructions are cropped to the GT bounding box grown by this fraction of its diagonal."""
-    icp: bool = True
-    """Refine the Sim(3) from camera centres with a scaled ICP onto the GT surface."""
-    icp_max_distance: float = 0.02
-    """ICP correspondence distance, as a fraction of the GT bounding-box diagonal."""
-    icp_max_points: int = 200_000
-    """ICP runs on a random subset of at most this many cloud points (0 = all): an event-frame
-    cloud of 1.7 M points took 53 s in ICP alone, for a transform a subset fixes as well."""
-    image_mode: str = "histogram"
-    """How frames (of any tone curve) meet GT radiance before MSE, PSNR and SSIM: histogram (GT
-    log-mapped to [0, 1], the frame's grey levels matched to its histogram: structure is compared,
-    not tone curve) or percentile (each rescaled by its 1st-99th percentiles)."""
-    max_image_frames: int = 60
-    """At most this many frames (evenly spaced) of a source are compared with GT intensity."""
-    heldout_views: int = 10
-    """Renders of the textured mesh from this many held-out GT cameras (midway between GT frame
-    times, which no conventional or GT frame uses) are compared with GT images."""
-    figures: bool = True
-    """Draw each dataset's pictures (``results/{dataset}/figures/``, the seed paper's figures and
-    the error-coloured views) and its page of textured meshes (``results/{dataset}/meshes.html``)."""
-
-    @classmethod
-    def from_dict(cls, d: dict[str, Any] | None) -> EvalConfig:
-        return section_from_dict(cls, d, "evaluate")
-
-    def check(self) -> None:
-        if self.completeness_reference not in ("observed", "full"):
-            raise ValueError(
-                "evaluate.completeness_reference: observed or full, "
-                f"not {self.completeness_reference!r}"
-            )
-
-
-def gt_reference_samples(
-    gt_dir: Path, gt_mesh: o3d.geometry.TriangleMesh, conf: EvalConfig
-) -> tuple[np.ndarray | None, dict[str, Any]]:
-    """The GT points completeness is measured on, and a description of them for the metrics file.
-
-    ``observed``: :func:`~evdense.evaluate.geometry.observed_surface_samples` from
-    ``visibility_views`` GT cameras evenly spaced in time over ``gt_dir/trajectory.txt``;
-    ``full``: None (the whole surface, sampled by :func:`evaluate_geometry`).
-    """
-    if conf.completeness_reference == "full":
-        return None, {"kind": "full", "num_samples": conf.num_samples}
-    from evdense.camera import load_camera
-    from evdense.poses import interpolate_poses
-
-    t_gt, T_gt = read_tum(gt_dir / "trajectory.txt")
-    times = np.linspace(t_gt.min(), t_gt.max(), conf.visibility_views)
-    _, poses = interpolate_poses(times, t_gt, T_gt)
-    cam = load_camera(gt_dir / "intrinsics.yaml")
-    pts, frac = observed_surface_samples(
-        gt_mesh, cam, poses, conf.num_samples, conf.visibility_min_views, seed=1
-    )
-    if len(pts) == 0:
-        raise ValueError(f"{gt_dir}: the GT cameras see no part of the GT mesh")
-    log.info(
-        "observed GT surface: %.1f%% of the mesh area (%d samples, >= %d of %d views)",
-        100 * frac, len(pts), conf.visibility_min_views, conf.visibility_views,
-    )  # fmt: skip
-    info = {
-        "kind": "observed",
-        "num_samples": len(pts),
-        "observed_area_fraction": frac,
-        "views": conf.visibility_views,
-        "min_views": conf.visibility_min_views,
-    }
-    return pts, info
 
 
 def _read_cloud(path: Path) -> np.ndarray:
@@ -159,89 +66,9 @@ def _transform_mesh(mesh: o3d.geometry.TriangleMesh, s: float, R: np.ndarray, t:
     return out
 
 
-def truncated_cost(fitness: float, inlier_rmse: float, max_distance: float) -> float:
-    """Mean of ``min(d, max_distance)^2`` over the points of a registration whose inliers (a
-    ``fitness`` fraction, within ``max_distance``) have RMSE ``inlier_rmse``: one number that
-    weighs points lost to the threshold against inliers brought closer."""
-    return fitness * inlier_rmse**2 + (1.0 - fitness) * max_distance**2
-
-
-def refine_with_icp(
-    points: np.ndarray,
-    gt_mesh: o3d.geometry.TriangleMesh,
-    max_distance: float,
-    seed: int = 0,
-    max_points: int = 0,
-) -> tuple[np.ndarray, dict[str, float]]:
-    """Scaled point-to-point ICP of ``points (N, 3)`` (already roughly aligned) onto GT surface samples.
-
-    Returns the 4x4 similarity to apply after the first alignment, and the fitness / RMSE before
-    and after. ICP is accepted when it lowers the truncated cost (:func:`truncated_cost`), the
-    identity is returned otherwise: a correction that brings 99.99 % of the cloud 10 % closer is
-    kept even when a handful of far points leave the threshold. With ``max_points`` > 0, ICP and
-    both scores use a random subset of that many points (seeded).
-    """
-    if 0 < max_points < len(points):
-        rng = np.random.default_rng(seed)
-        points = points[np.sort(rng.choice(len(points), max_points, replace=False))]
-    src = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
-    dst = o3d.geometry.PointCloud(
-        o3d.utility.Vector3dVector(sample_surface(gt_mesh, 200_000, seed))
-    )
-    reg = o3d.pipelines.registration
-    before = reg.evaluate_registration(src, dst, max_distance)
-    est = reg.TransformationEstimationPointToPoint(with_scaling=True)
-    crit = reg.ICPConvergenceCriteria(max_iteration=50)
-    H = np.asarray(
-        reg.registration_icp(src, dst, max_distance, np.eye(4), est, crit).transformation
-    )
-    after = reg.evaluate_registration(src, dst, max_distance, H)
-    cost_before = truncated_cost(before.fitness, before.inlier_rmse, max_distance)
-    cost_after = truncated_cost(after.fitness, after.inlier_rmse, max_distance)
-    info = {
-        "num_points": len(points),
-        "fitness_before": float(before.fitness),
-        "rmse_before": float(before.inlier_rmse),
-        "fitness_after": float(after.fitness),
-        "rmse_after": float(after.inlier_rmse),
-        "cost_before": float(cost_before),
-        "cost_after": float(cost_after),
-        "accepted": bool(cost_after < cost_before),
-    }
-    return (H if info["accepted"] else np.eye(4)), info
-
-
-def _apply_h(H: np.ndarray, pts: np.ndarray) -> np.ndarray:
-    return pts @ H[:3, :3].T + H[:3, 3]
-
-
-def evaluate_images(frames_dir: Path, gt_dir: Path, conf: EvalConfig) -> dict[str, Any]:
-    """MSE, PSNR and SSIM of a frames folder against GT intensity rendered at the frames' times."""
-    import imageio.v3 as iio
-
-    from evdense.sim.groundtruth import render_gt_intensity
-
-    paths, ts = frame_paths_and_times(frames_dir)
-    if not paths:
-        return {"num_frames": 0}
-    pick = np.unique(
-        np.linspace(0, len(paths) - 1, min(conf.max_image_frames, len(paths))).round().astype(int)
-    )
-    gt = render_gt_intensity(gt_dir, ts[pick])
-    per = []
-    for k, i in enumerate(pick):
-        img = iio.imread(paths[i]).astype(np.float64)
-        if img.ndim == 3:
-            img = img[..., :3].mean(-1)
-        per.append(compare_to_gt(img, gt[k], conf.image_mode))
-    out = {k: float(np.mean([m[k] for m in per])) for k in ("mse", "psnr", "ssim")}
-    out["num_frames"] = len(per)
-    return out
-
-
 # Over 80 lines on purpose: the order of the evaluation (SfM, alignment, trajectory, images,
 # geometry), each a call; what remains is which score needs which product and the metrics' shape.
-def evaluate_source(
+def run_evaluate(
     gt_dir: str | Path,
     sfm_dir: str | Path,
     out_path: str | Path,
@@ -377,7 +204,7 @@ def _geometry_scores(
     geometry = {}
     for name, obj in aligned.items():
         if isinstance(obj, np.ndarray):
-            obj = _apply_h(H, obj) if len(obj) else obj
+            obj = apply_h(H, obj) if len(obj) else obj
         else:
             obj.transform(H)
         m = evaluate_geometry(
@@ -420,19 +247,6 @@ def _with_images(
     return result
 
 
-def alignment_record(
-    s: float, R: np.ndarray, t: np.ndarray, icp: np.ndarray | None = None
-) -> dict[str, Any]:
-    """How the SfM frame was mapped onto GT: the Sim(3) from camera centres (``x -> s R x + t``)
-    and the ICP refinement applied after it (4x4; identity without a GT surface)."""
-    return {
-        "scale": s,
-        "R": np.asarray(R).tolist(),
-        "t": np.asarray(t).tolist(),
-        "icp": (np.eye(4) if icp is None else np.asarray(icp)).tolist(),
-    }
-
-
 def _evaluate_without_gt_geometry(
     gt_dir: Path,
     sfm_dir: Path,
@@ -466,112 +280,6 @@ def _evaluate_without_gt_geometry(
         )
     write_json_atomic(out_path, result, default=float)
     return result
-
-
-def evaluate_against_reference(
-    frames_dir: Path, reference_dir: Path, conf: EvalConfig, max_shift: int = 10
-) -> dict[str, Any]:
-    """MSE and SSIM of frames against the recording's nearest APS frame (EVREAL-style: each image
-    rescaled by its 1st-99th percentiles, best integer shift within ``max_shift`` px; see
-    :func:`evdense.evaluate.real_frames.shifted_metrics`). Reference frames more than half the
-    median frame interval from every frame are not used."""
-    import imageio.v3 as iio
-
-    from evdense.evaluate.real_frames import shifted_metrics
-
-    if frames_dir.resolve() == reference_dir.resolve():
-        return {"reference": "aps_nearest", "num_frames": 0, "note": "the source is the reference"}
-    paths, ts = frame_paths_and_times(frames_dir)
-    ref_paths, ref_ts = frame_paths_and_times(reference_dir)
-    out: dict[str, Any] = {"reference": "aps_nearest", "num_frames": 0}
-    if not paths or not ref_paths:
-        return out
-    gap = float(np.median(np.diff(ts))) if len(ts) > 1 else np.inf
-    pairs = []
-    for j, tr in enumerate(ref_ts):
-        i = int(np.argmin(np.abs(ts - tr)))
-        if abs(ts[i] - tr) <= gap / 2:
-            pairs.append((i, j))
-    if len(pairs) > conf.max_image_frames:
-        keep = np.linspace(0, len(pairs) - 1, conf.max_image_frames).round().astype(int)
-        pairs = [pairs[k] for k in np.unique(keep)]
-    per = []
-    for i, j in pairs:
-        img = iio.imread(paths[i]).astype(np.float64)
-        ref = iio.imread(ref_paths[j]).astype(np.float64)
-        img = img[..., :3].mean(-1) if img.ndim == 3 else img
-        ref = ref[..., :3].mean(-1) if ref.ndim == 3 else ref
-        if img.shape != ref.shape:
-            continue
-        per.append(shifted_metrics(img, ref, max_shift))
-    if per:
-        out.update({k: float(np.mean([m[k] for m in per])) for k in ("mse", "ssim")})
-    out["num_frames"] = len(per)
-    return out
-
-
-def evaluate_textured(
-    obj_path: Path,
-    sim3: tuple[float, np.ndarray, np.ndarray],
-    H: np.ndarray,
-    gt_dir: Path,
-    conf: EvalConfig,
-) -> dict[str, Any]:
-    """PSNR and SSIM of the textured mesh rendered from held-out GT cameras against GT images.
-
-    The mesh is moved into the GT frame (Sim(3) then ICP); GT cameras sit midway between the GT
-    frame times. Scores are over the pixels the mesh covers, after matching the render's grey
-    levels to the GT log image (as for frames); ``coverage`` is that pixel fraction.
-    """
-    from skimage.exposure import match_histograms
-
-    from evdense.camera import load_camera
-    from evdense.evaluate.images import log_reference
-    from evdense.evaluate.rendering import render_textured
-    from evdense.sim.groundtruth import render_gt_intensity
-    from evdense.texture import read_textured_mesh
-
-    tm = read_textured_mesh(obj_path)
-    s, R, t = sim3
-    v = apply_sim3(s, R, t, tm.vertices)
-    tm.vertices = _apply_h(H, v)
-    cam = load_camera(gt_dir / "intrinsics.yaml")
-    frame_t = frame_paths_and_times(gt_dir / "frames")[1]
-    mids = (frame_t[:-1] + frame_t[1:]) / 2
-    if len(mids) == 0:
-        return {"num_views": 0}
-    mids = mids[
-        np.unique(
-            np.linspace(0, len(mids) - 1, min(conf.heldout_views, len(mids))).round().astype(int)
-        )
-    ]
-    t_gt, T_gt = read_tum(gt_dir / "trajectory.txt")
-    from evdense.poses import interpolate_poses
-
-    _, poses = interpolate_poses(mids, t_gt, T_gt)
-    gt = render_gt_intensity(gt_dir, mids)
-    psnr, ssim, cover = [], [], []
-    for k in range(len(mids)):
-        img, mask = render_textured(tm, cam, poses[k])
-        cover.append(float(mask.mean()))
-        if mask.sum() < 100:
-            continue
-        grey = img[..., :3].mean(-1) if img.ndim == 3 else img
-        ref = log_reference(gt[k])
-        matched = np.clip(match_histograms(grey[mask].astype(np.float64), ref[mask]), 0, 1)
-        mse = float(np.mean((matched - ref[mask]) ** 2))
-        psnr.append(10 * np.log10(1 / mse) if mse > 0 else float("inf"))
-        full = ref.copy()
-        full[mask] = matched
-        from skimage.metrics import structural_similarity
-
-        ssim.append(float(structural_similarity(full, ref, data_range=1.0)))
-    return {
-        "num_views": len(mids),
-        "psnr": float(np.mean(psnr)) if psnr else 0.0,
-        "ssim": float(np.mean(ssim)) if ssim else 0.0,
-        "coverage": float(np.mean(cover)),
-    }
 
 
 def _f_at(geom: dict, rel: float) -> float | None:

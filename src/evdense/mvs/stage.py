@@ -21,7 +21,6 @@ from __future__ import annotations
 import json
 import logging
 import multiprocessing
-import shutil
 import time
 from collections import OrderedDict
 from concurrent.futures import ProcessPoolExecutor, as_completed
@@ -52,6 +51,8 @@ from evdense.mvs.workspace import (
     ViewSelectionConfig,
     Workspace,
     depth_range,
+    discard_stale_workspace,
+    input_fingerprint,
     read_workspace,
     select_source_views,
     undistort_to_workspace,
@@ -281,7 +282,7 @@ def _worker_run(kind: str, i: int) -> list[str]:
     return handler.messages
 
 
-def compute_depth_maps(ws: Workspace, cfg: MVSConfig, workers: int = 1) -> None:
+def _compute_depth_maps(ws: Workspace, cfg: MVSConfig, workers: int = 1) -> None:
     """Steps 2-4 of the stage on an undistorted workspace (resumable; see the module docstring).
 
     ``workers`` > 1 (CPU only): that many processes, one torch thread each, work on different
@@ -349,37 +350,6 @@ def run_mvs(
         torch.set_num_threads(torch_threads)
 
 
-def input_fingerprint(sparse_dir: Path, image_dir: Path, cfg: MVSConfig) -> str:
-    """SHA-1 over the sparse model's files, the images' bytes and the MVS config: what the
-    workspace's maps were computed from."""
-    import hashlib
-
-    h = hashlib.sha1(repr(cfg).encode())
-    for p in sorted(Path(sparse_dir).glob("*")) + sorted(Path(image_dir).glob("*.png")):
-        if p.is_file():
-            h.update(p.name.encode())
-            h.update(p.read_bytes())
-    return h.hexdigest()
-
-
-def discard_stale_workspace(out_dir: Path, fingerprint: str) -> bool:
-    """Remove the undistorted images and maps of ``out_dir`` when they were made from other
-    inputs (another fingerprint, or none recorded); True when something was removed. Resuming
-    must only ever reuse maps of the same inputs."""
-    stamp = out_dir / "inputs.sha1"
-    parts = [out_dir / n for n in ("images", "sparse", "stereo")]
-    if stamp.is_file() and stamp.read_text().strip() == fingerprint:
-        return False
-    stale = [p for p in parts if p.exists()]
-    for p in stale:
-        shutil.rmtree(p)
-    if stale:
-        log.info("%s: workspace made from other inputs; discarded", out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    stamp.write_text(fingerprint + "\n")
-    return bool(stale)
-
-
 def _run_mvs(
     sparse_dir: str | Path,
     image_dir: str | Path,
@@ -393,7 +363,7 @@ def _run_mvs(
     discard_stale_workspace(out_dir, input_fingerprint(Path(sparse_dir), Path(image_dir), cfg))
     ws = undistort_to_workspace(sparse_dir, image_dir, out_dir, cfg.max_image_size)
     t_undistort = time.perf_counter() - t0
-    compute_depth_maps(ws, cfg, workers=threads or 1)
+    _compute_depth_maps(ws, cfg, workers=threads or 1)
     t1 = time.perf_counter()
     cloud = fuse_workspace(ws, cfg.fusion, "geometric", num_threads=threads or -1)
     write_cloud(out_dir / "fused.ply", cloud)

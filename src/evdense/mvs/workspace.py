@@ -359,3 +359,34 @@ def write_patch_match_cfg(ws: Workspace, sources: list[list[int]]) -> None:
         lines.append(", ".join(ws.images[j].name for j in src))
     write_text_atomic(stereo / "patch-match.cfg", "\n".join(lines) + "\n")
     write_text_atomic(stereo / "fusion.cfg", "".join(im.name + "\n" for im in ws.images))
+
+
+def input_fingerprint(sparse_dir: Path, image_dir: Path, cfg: object) -> str:
+    """SHA-1 over the sparse model's files, the images' bytes and the MVS config: what the
+    workspace's maps were computed from."""
+    import hashlib
+
+    h = hashlib.sha1(repr(cfg).encode())
+    for p in sorted(Path(sparse_dir).glob("*")) + sorted(Path(image_dir).glob("*.png")):
+        if p.is_file():
+            h.update(p.name.encode())
+            h.update(p.read_bytes())
+    return h.hexdigest()
+
+
+def discard_stale_workspace(out_dir: Path, fingerprint: str) -> bool:
+    """Remove the undistorted images and maps of ``out_dir`` when they were made from other
+    inputs (another fingerprint, or none recorded); True when something was removed. Resuming
+    must only ever reuse maps of the same inputs."""
+    stamp = out_dir / "inputs.sha1"
+    parts = [out_dir / n for n in ("images", "sparse", "stereo")]
+    if stamp.is_file() and stamp.read_text().strip() == fingerprint:
+        return False
+    stale = [p for p in parts if p.exists()]
+    for p in stale:
+        shutil.rmtree(p)
+    if stale:
+        log.info("%s: workspace made from other inputs; discarded", out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    stamp.write_text(fingerprint + "\n")
+    return bool(stale)

@@ -32,8 +32,9 @@ from evdense.sfm.config import (
     SfmError,
 )
 from evdense.sfm.options import set_options
+from evdense.sfm.products import read_sfm_trajectory, sfm_failed, write_failed_sfm
 from evdense.sfm.select import select_frames
-from evdense.sfm.stage import read_sfm_trajectory, run_sfm, sfm_failed, write_failed_sfm
+from evdense.sfm.stage import run_sfm
 
 __all__ = [
     "CAMERA_MODELS",
