@@ -318,12 +318,24 @@ class ReconstructionNet(nn.Module):
     input_normalization: str = "nonzero"
     output_range: str = "clip"
 
+    _hp: dict[str, Any]
+
     def hparams(self) -> dict[str, Any]:
         """Constructor arguments; ``type(net)(**net.hparams())`` builds the same architecture."""
-        raise NotImplementedError
+        return dict(self._hp)
 
     def num_parameters(self) -> int:
         return sum(p.numel() for p in self.parameters())
+
+
+def _arguments(scope: dict[str, Any]) -> dict[str, Any]:
+    """A constructor's arguments from its ``locals()`` taken first thing (tuples as lists, as a
+    checkpoint's JSON stores them)."""
+    return {
+        k: list(v) if isinstance(v, tuple) else v
+        for k, v in scope.items()
+        if k not in ("self", "__class__")
+    }
 
 
 class _FireNetCore(nn.Module):
@@ -375,21 +387,13 @@ class FireNet(ReconstructionNet):
         num_residual_blocks: int = 2,
         recurrent_resblocks: tuple[int, ...] = (0,),
     ) -> None:
+        hp = _arguments(locals())
         super().__init__()
+        self._hp = hp
         self.num_bins = num_bins
-        self._hp = dict(
-            num_bins=num_bins,
-            base_channels=base_channels,
-            kernel_size=kernel_size,
-            num_residual_blocks=num_residual_blocks,
-            recurrent_resblocks=list(recurrent_resblocks),
-        )
         self.net = _FireNetCore(
             num_bins, base_channels, kernel_size, num_residual_blocks, tuple(recurrent_resblocks)
         )
-
-    def hparams(self) -> dict[str, Any]:
-        return dict(self._hp)
 
     def forward(self, x: Tensor, states: States | None = None) -> tuple[Tensor, States]:
         n = self.net
@@ -417,9 +421,10 @@ class FireNetPlus(ReconstructionNet):
     output_range = "clip"
 
     def __init__(self, num_bins: int = 5, base_channels: int = 16, kernel_size: int = 3) -> None:
+        hp = _arguments(locals())
         super().__init__()
+        self._hp = hp
         self.num_bins = num_bins
-        self._hp = dict(num_bins=num_bins, base_channels=base_channels, kernel_size=kernel_size)
         c = base_channels
         self.head = ConvLayer(num_bins, c, kernel_size, padding=kernel_size // 2)
         self.G1 = ConvGRU(c, c, kernel_size)
@@ -427,9 +432,6 @@ class FireNetPlus(ReconstructionNet):
         self.G2 = ConvGRU(c, c, kernel_size)
         self.R2 = ResidualBlock(c)
         self.pred = ConvLayer(c, 1, 1, relu=False)
-
-    def hparams(self) -> dict[str, Any]:
-        return dict(self._hp)
 
     def forward(self, x: Tensor, states: States | None = None) -> tuple[Tensor, States]:
         s0, s1 = states if states is not None else (None, None)
@@ -508,20 +510,13 @@ class E2VID(ReconstructionNet):
         recurrent_block_type: str = "convlstm",
         kernel_size: int = 5,
     ) -> None:
+        hp = _arguments(locals())
         super().__init__()
         if norm not in ("BN", "none"):
             raise ValueError(f"E2VID: norm must be 'BN' or 'none', not {norm!r}")
+        self._hp = hp
         self.num_bins = num_bins
         self.num_encoders = num_encoders
-        self._hp = dict(
-            num_bins=num_bins,
-            base_channels=base_channels,
-            num_encoders=num_encoders,
-            num_residual_blocks=num_residual_blocks,
-            norm=norm,
-            recurrent_block_type=recurrent_block_type,
-            kernel_size=kernel_size,
-        )
         self.unetrecurrent = _UNetRecurrent(
             num_bins,
             base_channels,
@@ -531,9 +526,6 @@ class E2VID(ReconstructionNet):
             recurrent_block_type,
             kernel_size,
         )
-
-    def hparams(self) -> dict[str, Any]:
-        return dict(self._hp)
 
     @property
     def pad_multiple(self) -> int:
