@@ -285,9 +285,13 @@ def test_clean_mesh_removes_small_components_and_decimates():
     assert 400 <= len(out.triangles) <= 500
 
 
-def test_mesh_config_refuses_unknown_keys():
+def test_mesh_config_refuses_unknown_keys_and_leaves_the_later_stages_sections():
     with pytest.raises(ValueError, match="mesh.visibility"):
         MeshConfig.from_dict({"visibility": {"no_such_key": 1}})
+    with pytest.raises(ValueError, match="no_such_key"):
+        MeshConfig.from_dict({"no_such_key": 1})
+    conf = MeshConfig.from_dict({"method": "poisson", "refine": {"x": 1}, "texture": {}})
+    assert conf.method == "poisson"
 
 
 def test_mesh_surface_stage_from_a_workspace(tmp_path, rng):

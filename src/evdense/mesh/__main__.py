@@ -18,9 +18,8 @@ def main(argv: list[str] | None = None) -> None:
 
     from evdense.mesh.stage import run_mesh
 
-    conf = {k: v for k, v in config_section(args).items() if k not in ("refine", "texture")}
     ws = Path(args.workspace)
-    run_mesh(ws / "fused.ply", ws, args.output, args.method, conf)
+    run_mesh(ws / "fused.ply", ws, args.output, args.method, config_section(args))
 
 
 if __name__ == "__main__":

@@ -25,6 +25,9 @@ from evdense.mesh.visibility import VisibilityConfig, estimate_visibility, visib
 log = get_logger("mesh")
 
 METHODS = ("poisson", "visibility")
+LATER_STAGE_SECTIONS = ("refine", "texture")
+"""Sub-sections of the ``mesh`` config section that belong to :mod:`evdense.refine` and
+:mod:`evdense.texture`."""
 
 
 @dataclass
@@ -43,7 +46,9 @@ class MeshConfig:
 
     @classmethod
     def from_dict(cls, d: dict[str, Any] | None) -> MeshConfig:
-        """Build from the config section (unknown keys raise ``ValueError`` naming them)."""
+        """Build from the config section; its ``refine`` and ``texture`` sub-sections (the later
+        stages') are ignored, other unknown keys raise ``ValueError`` naming them."""
+        d = {k: v for k, v in (d or {}).items() if k not in LATER_STAGE_SECTIONS}
         return section_from_dict(cls, d, "mesh")
 
 
