@@ -48,6 +48,18 @@ class RawEvents:
         return s
 
 
+def event_buffers(
+    cap: int, xy_dtype: type = np.uint16, p_dtype: type = np.uint8
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Empty ``t`` (int64), ``x``, ``y`` and ``p`` arrays of ``cap`` events for a decoder to fill."""
+    return (
+        np.empty(cap, np.int64),
+        np.empty(cap, xy_dtype),
+        np.empty(cap, xy_dtype),
+        np.empty(cap, p_dtype),
+    )
+
+
 @dataclass
 class Frame:
     """One conventional (APS) frame: ``t_us`` microseconds, ``image`` ``(H, W)`` or ``(H, W, 3)`` uint8,

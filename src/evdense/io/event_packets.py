@@ -46,6 +46,8 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
+from evdense.io.base import event_buffers
+
 EVENT_PACKET_TYPES = ("event_camera_msgs/msg/EventPacket",)
 SUPPORTED_ENCODINGS = ("evt3", "mono", "libcaer_cmp", "libcaer")
 
@@ -181,6 +183,13 @@ class PacketDecoder:
             return self._libcaer(pkt, k)
         return self._mono(pkt, k)
 
+    def _whole(self, pkt: EventPacket, k: int, size: int, what: str) -> bytes:
+        """The payload of packet ``k``, which must be a whole number of ``size``-byte ``what``."""
+        if len(pkt.events) % size:
+            raise ValueError(f"{self.where}: packet {k}: {len(pkt.events)} bytes is not a whole "
+                             f"number of {what}")  # fmt: skip
+        return pkt.events
+
     def _keep_on_sensor(self, pkt: EventPacket, t, x, y, p):
         ok = (x < pkt.width) & (y < pkt.height)
         if not ok.all():
@@ -191,15 +200,8 @@ class PacketDecoder:
     def _libcaer_cmp(
         self, pkt: EventPacket, k: int
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        if len(pkt.events) % 2:
-            raise ValueError(f"{self.where}: packet {k}: {len(pkt.events)} bytes is not a whole "
-                             "number of 16-bit libcaer_cmp words")  # fmt: skip
-        words = np.frombuffer(pkt.events, dtype="<u2")
-        cap = 8 * len(words)
-        t_us = np.empty(cap, np.int64)
-        x = np.empty(cap, np.uint16)
-        y = np.empty(cap, np.uint16)
-        p = np.empty(cap, np.uint8)
+        words = np.frombuffer(self._whole(pkt, k, 2, "16-bit libcaer_cmp words"), dtype="<u2")
+        t_us, x, y, p = event_buffers(8 * len(words))
         n = _decode_libcaer_cmp(words, t_us, x, y, p)
         t = (int(pkt.time_base) + t_us[:n] * 1000 + 500) // 1000
         return self._keep_on_sensor(pkt, t, x[:n], y[:n], p[:n])
@@ -207,10 +209,10 @@ class PacketDecoder:
     def _libcaer(
         self, pkt: EventPacket, k: int
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        if len(pkt.events) % 8:
-            raise ValueError(f"{self.where}: packet {k}: {len(pkt.events)} bytes is not a whole "
-                             "number of 8-byte libcaer events")  # fmt: skip
-        rec = np.frombuffer(pkt.events, dtype=np.dtype([("a", "<u4"), ("t", "<i4")]))
+        rec = np.frombuffer(
+            self._whole(pkt, k, 8, "8-byte libcaer events"),
+            dtype=np.dtype([("a", "<u4"), ("t", "<i4")]),
+        )
         a = rec["a"]
         ts = rec["t"].astype(np.int64)
         wraps = np.concatenate([[0], np.cumsum(np.diff(ts) < 0)]) if len(ts) else ts
@@ -227,11 +229,7 @@ class PacketDecoder:
         nw = len(data) // 2
         self._carry = data[2 * nw :]
         words = np.frombuffer(data, dtype="<u2", count=nw)
-        cap = 12 * nw
-        t = np.empty(cap, np.int64)
-        x = np.empty(cap, np.uint16)
-        y = np.empty(cap, np.uint16)
-        p = np.empty(cap, np.uint8)
+        t, x, y, p = event_buffers(12 * nw)
         n = _decode_evt3(words, self._state, t, x, y, p)
         self.dropped_before_time_base = int(self._state[8])
         return t[:n], x[:n], y[:n], p[:n]
@@ -239,10 +237,7 @@ class PacketDecoder:
     def _mono(
         self, pkt: EventPacket, k: int
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        if len(pkt.events) % 8:
-            raise ValueError(f"{self.where}: packet {k}: {len(pkt.events)} bytes is not a whole "
-                             "number of 64-bit mono events")  # fmt: skip
-        w = np.frombuffer(pkt.events, dtype="<u8").astype(np.uint64)
+        w = np.frombuffer(self._whole(pkt, k, 8, "64-bit mono events"), dtype="<u8")
         dt = (w & np.uint64(0xFFFFFFFF)).astype(np.int64)
         x = ((w >> np.uint64(32)) & np.uint64(0xFFFF)).astype(np.uint16)
         y = ((w >> np.uint64(48)) & np.uint64(0x7FFF)).astype(np.uint16)

@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from evdense.io._textparse import njit
-from evdense.io.base import DEFAULT_CHUNK_EVENTS, RawEvents, Recording
+from evdense.io.base import DEFAULT_CHUNK_EVENTS, RawEvents, Recording, event_buffers
 from evdense.log import get_logger
 
 log = get_logger("io")
@@ -291,11 +291,7 @@ class RawRecording(_PropheseeBase):
         start = 0
         for s in range(0, nwords, step):
             w = np.asarray(mm[s : s + step])
-            cap = len(w) * per_word
-            t = np.empty(cap, np.int64)
-            x = np.empty(cap, np.uint16)
-            y = np.empty(cap, np.uint16)
-            p = np.empty(cap, np.uint8)
+            t, x, y, p = event_buffers(len(w) * per_word)
             n = decode(w, state, t, x, y, p)
             if n:
                 off = self.data_offset + s * self.word_bytes

@@ -24,7 +24,14 @@ import numpy as np
 
 from evdense.camera import Camera
 from evdense.io._textparse import ERROR_NAMES, OK, parse_block
-from evdense.io.base import DEFAULT_CHUNK_EVENTS, Frame, RawEvents, Recording, Trajectory
+from evdense.io.base import (
+    DEFAULT_CHUNK_EVENTS,
+    Frame,
+    RawEvents,
+    Recording,
+    Trajectory,
+    event_buffers,
+)
 from evdense.log import get_logger
 from evdense.poses import read_tum
 
@@ -157,10 +164,7 @@ class RpgTextRecording(Recording):
         read_bytes = min(max(self.chunk_events * BYTES_PER_EVENT, 1 << 16), 1 << 26)
         for block, last in self._blocks(read_bytes):
             cap = len(block) // 8 + 1
-            t = np.empty(cap, np.int64)
-            x = np.empty(cap, np.int32)
-            y = np.empty(cap, np.int32)
-            p = np.empty(cap, np.int8)
+            t, x, y, p = event_buffers(cap, np.int32, np.int8)
             skip_at = np.empty(cap + 1, np.int64)
             skip_count = np.empty(cap + 1, np.int64)
             ne, nl, ns, err, err_line = parse_block(

@@ -36,6 +36,17 @@ def _box(size: list[float], center: list[float], material: str, **extra: object)
     return {"type": "box", "size": size, "center": center, "material": material, **extra}
 
 
+def _light(low: float, tile_m: float) -> dict:
+    """A light material: soft 1/f noise between ``low`` and 1, radiance 3 (times the dataset's
+    dynamic range)."""
+    return {
+        "texture": {"type": "noise", "fmin": 1, "beta": 3.0, "low": low, "high": 1.0},
+        "tile_m": tile_m,
+        "radiance": 3.0,
+        "light": True,
+    }
+
+
 ROOM = {
     "name": "room",
     "description": "A 7 x 6 x 3 m room with five textured boxes on the floor, a poster, a bright "
@@ -74,18 +85,8 @@ ROOM = {
         },
         "gravel": {"texture": "skimage:gravel", "tile_m": 0.8},
         "poster": {"texture": "skimage:astronaut", "tile_m": 1.4},
-        "window": {
-            "texture": {"type": "noise", "fmin": 1, "beta": 3.0, "low": 0.55, "high": 1.0},
-            "tile_m": 1.6,
-            "radiance": 3.0,
-            "light": True,
-        },
-        "lamp": {
-            "texture": {"type": "noise", "fmin": 1, "beta": 3.0, "low": 0.7, "high": 1.0},
-            "tile_m": 0.6,
-            "radiance": 3.0,
-            "light": True,
-        },
+        "window": _light(0.55, 1.6),
+        "lamp": _light(0.7, 0.6),
     },
     "objects": [
         _room([7.0, 6.0, 3.0]),
@@ -184,12 +185,7 @@ DESK = {
         "tissue": {"texture": "skimage:camera", "tile_m": 0.3},
         "picture": {"texture": "skimage:coffee", "tile_m": 0.8},
         "screen": {"texture": "skimage:astronaut", "tile_m": 0.6, "radiance": 2.0, "light": True},
-        "shade": {
-            "texture": {"type": "noise", "fmin": 1, "beta": 3.0, "low": 0.7, "high": 1.0},
-            "tile_m": 0.3,
-            "radiance": 3.0,
-            "light": True,
-        },
+        "shade": _light(0.7, 0.3),
     },
     "objects": [
         _room([5.0, 4.0, 2.8]),
@@ -310,12 +306,7 @@ FACADE = {
             "texture": {"type": "noise", "beta": 2.2, "low": 0.03, "high": 0.3},
             "tile_m": 1.0,
         },
-        "lit_window": {
-            "texture": {"type": "noise", "fmin": 1, "beta": 3.0, "low": 0.5, "high": 1.0},
-            "tile_m": 1.2,
-            "radiance": 3.0,
-            "light": True,
-        },
+        "lit_window": _light(0.5, 1.2),
         "street": {
             "texture": {"type": "image", "path": "skimage:gravel", "repeat": 4, "variation": 0.5},
             "tile_m": 6.0,
