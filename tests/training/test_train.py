@@ -9,6 +9,7 @@ import pytest
 import torch
 from skimage.metrics import structural_similarity
 
+from evdense.events.voxel import voxel_grid
 from evdense.recon.checkpoints import load_checkpoint, save_checkpoint
 from evdense.recon.inference import NetworkReconstructor
 from evdense.recon.postprocess import standardize_nonzero
@@ -22,10 +23,12 @@ from evdense.training.losses import (
     temporal_consistency,
 )
 from evdense.training.train import (
+    SequenceSampler,
     TrainConfig,
     build_model,
     latest_checkpoint,
     normalize_windows,
+    playback_path,
     train_model,
     validate,
 )
@@ -184,6 +187,55 @@ def test_window_normalisation_matches_inference():
         with torch.no_grad():
             direct, _ = net(clipped[k : k + 1], None)
         assert np.allclose(rec(vox[k]), direct[0, 0].clamp(0, 1).numpy(), atol=2e-2)
+
+
+def test_a_window_played_backward_is_its_bins_reversed_and_negated():
+    rng = np.random.default_rng(3)
+    n, h, w = 400, 12, 16
+    t = np.sort(rng.uniform(1000.0, 9000.0, n))
+    x, y = rng.integers(0, w, n), rng.integers(0, h, n)
+    p = rng.choice([-1, 1], n)
+    fwd = voxel_grid(t, x, y, p, 5, h, w, t0=1000.0, t1=9000.0)
+    # the same events in reversed time: t -> t0 + t1 - t, order reversed, polarity negated
+    back = voxel_grid(
+        (10000.0 - t)[::-1], x[::-1], y[::-1], -p[::-1], 5, h, w, t0=1000.0, t1=9000.0
+    )
+    assert np.allclose(back, -fwd[::-1], atol=1e-5)
+    # and so after the input normalisation, as the sampler applies it
+    nf, nb = normalize_windows(np.stack([fwd, back])).float()
+    assert torch.allclose(nb, -nf.flip(0), atol=2e-3)
+
+
+def test_playback_path_turns_at_both_ends_with_targets_at_the_window_ends():
+    win, tgt, back = (a.tolist() for a in playback_path(4, 0, 13))
+    assert win == [1, 2, 3, 3, 2, 1, 1, 2, 3, 3, 2, 1, 1]
+    assert tgt == [1, 2, 3, 2, 1, 0, 1, 2, 3, 2, 1, 0, 1]
+    assert back == [False, False, False, True, True, True] * 2 + [False]
+    # a window played backward ends where the previous step's window started
+    assert all(tgt[k] == (win[k] - 1 if back[k] else win[k]) for k in range(13))
+    with pytest.raises(ValueError, match="at least 2 windows"):
+        playback_path(1, 0, 3)
+
+
+def test_reverse_playback_gives_sequences_longer_than_simulated():
+    rng = np.random.default_rng(0)
+    vox = rng.standard_normal((2, 5, 5, 8, 8)).astype(np.float32)
+    tgt = rng.random((2, 5, 8, 8)).astype(np.float32)
+    conf = {**TINY, "crop_size": 8, "sequence_length": 12, "tbptt_length": 4, "augment": False,
+            "data": {**TINY["data"], "windows_per_sequence": 5}}  # fmt: skip
+    with pytest.raises(ValueError, match="reverse_playback"):
+        TrainConfig.from_dict(conf)
+    sampler = SequenceSampler(vox, tgt, TrainConfig.from_dict({**conf, "reverse_playback": True}))
+    x, y = sampler.batch(np.random.default_rng(1))
+    assert x.shape == (12, 4, 5, 8, 8) and y.shape == (12, 4, 1, 8, 8)
+    # every step is a stored window (forward) or its reversal (backward), with a stored target
+    norm, stored = sampler.voxels.float(), sampler.targets.float()
+    for k in range(12):
+        v, t = x[k, 0], y[k, 0, 0]
+        s = next(i for i in range(2) if any(torch.equal(t, stored[i, j]) for j in range(5)))
+        assert any(
+            torch.equal(v, norm[s, j]) or torch.equal(v, -norm[s, j].flip(0)) for j in range(5)
+        )
 
 
 @pytest.mark.slow

@@ -4,6 +4,8 @@ One training *step* takes a batch of ``batch_size`` random crops (``crop_size`` 
 ``sequence_length`` consecutive windows from random training sequences, runs the network from a
 zero state over them in chunks of ``tbptt_length`` windows and makes one optimizer update per
 chunk, the recurrent state detached between chunks (truncated backpropagation through time).
+With ``reverse_playback`` a crop may run longer than its simulated sequence: the windows play
+forward, then backward in time, and so on (:func:`playback_path`).
 
 Inputs are the raw voxel grids with FireNet's input normalisation (non-zero entries of each whole
 window standardised to mean 0, std 1, computed over the full frame before cropping, as at
@@ -68,6 +70,11 @@ class TrainConfig:
     """Consecutive windows per crop and step (from a zero recurrent state)."""
     tbptt_length: int = 20
     """Windows per backpropagation chunk (the state is detached between chunks)."""
+    reverse_playback: bool = False
+    """Let ``sequence_length`` exceed the simulated windows: a crop plays its sequence forward,
+    then backward in time (each window's voxel bins reversed and polarities negated, the target
+    one window earlier), then forward again, and so on, so the recurrent state learns to hold a
+    scene over many more windows than were simulated."""
     voxel_clip: float = 3.0
     """Cap on ``|voxel|`` before the input normalisation, as ``reconstruct.voxel_clip`` at inference (0 = none)."""
     max_steps: int = 4000
@@ -130,8 +137,9 @@ class TrainConfig:
     def check(self) -> None:
         if self.sequence_length % self.tbptt_length:
             raise ValueError("train.sequence_length must be a multiple of train.tbptt_length")
-        if self.sequence_length > self.data.windows_per_sequence:
-            raise ValueError("train.sequence_length exceeds train.data.windows_per_sequence")
+        if self.sequence_length > self.data.windows_per_sequence and not self.reverse_playback:
+            raise ValueError("train.sequence_length exceeds train.data.windows_per_sequence "
+                             "(set train.reverse_playback to play sequences back and forth)")  # fmt: skip
         if self.crop_size > min(self.data.width, self.data.height):
             raise ValueError("train.crop_size exceeds the simulated camera size")
 
@@ -199,6 +207,30 @@ def normalize_windows(voxels: np.ndarray, clip: float = 0.0) -> torch.Tensor:
     return out.reshape(shape)
 
 
+def playback_path(
+    num_windows: int, start: int, length: int
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Windows, targets and the played-backward mask of ``length`` steps of a sequence of
+    ``num_windows`` windows played forward, backward, forward... from position ``start`` of the
+    cycle (``0 <= start < 2 (num_windows - 1)``).
+
+    Window ``i`` spans ``(T_i, T_i+1]`` and its target is the frame at ``T_i+1``. Played backward,
+    the same events run from ``T_i+1`` to ``T_i``: in a bilinear-in-time voxel grid that is the
+    bins in reverse order with negated polarities (also after the input normalisation, which is odd
+    in the voxels), and its target is the frame at ``T_i``, window ``i - 1``'s. The cycle plays
+    windows ``1 .. n-1`` forward, then ``n-1 .. 1`` backward (targets ``n-2 .. 0``); window 0,
+    whose start frame is not stored, is left out.
+    """
+    if num_windows < 2:
+        raise ValueError("reverse playback needs sequences of at least 2 windows")
+    period = 2 * (num_windows - 1)
+    pos = (start + np.arange(length)) % period
+    back = pos >= num_windows - 1
+    win = np.where(back, period - pos, pos + 1)
+    tgt = np.where(back, win - 1, win)
+    return torch.from_numpy(win), torch.from_numpy(tgt), torch.from_numpy(back)
+
+
 class SequenceSampler:
     """Random crops of consecutive windows from a split held in memory (float16)."""
 
@@ -214,12 +246,21 @@ class SequenceSampler:
         xs, ys = [], []
         for _ in range(self.conf.batch_size):
             s = int(rng.integers(s_all))
-            k = int(rng.integers(0, w_all - L + 1))
+            if L <= w_all:
+                k = int(rng.integers(0, w_all - L + 1))
+            else:
+                k = int(rng.integers(0, 2 * (w_all - 1)))
             y0 = int(rng.integers(0, h - c + 1))
             x0 = int(rng.integers(0, w - c + 1))
             flip, invert = rng.random(2) < 0.5
-            v = self.voxels[s, k : k + L, :, y0 : y0 + c, x0 : x0 + c].float()
-            t = self.targets[s, k : k + L, y0 : y0 + c, x0 : x0 + c].float()
+            if L <= w_all:
+                v = self.voxels[s, k : k + L, :, y0 : y0 + c, x0 : x0 + c].float()
+                t = self.targets[s, k : k + L, y0 : y0 + c, x0 : x0 + c].float()
+            else:
+                win, tgt, back = playback_path(w_all, k, L)
+                v = self.voxels[s, win, :, y0 : y0 + c, x0 : x0 + c].float()
+                v[back] = -v[back].flip(1)
+                t = self.targets[s, tgt, y0 : y0 + c, x0 : x0 + c].float()
             if self.conf.augment and flip:
                 v, t = v.flip(-1), t.flip(-1)
             if self.conf.augment and invert:
