@@ -143,7 +143,8 @@ def _add_train(sub: argparse.ArgumentParser) -> None:
 def _run_train(args: argparse.Namespace) -> int:
     import yaml
 
-    from evdense.training.train import TrainConfig, run_training
+    from evdense.training.stage import run_training
+    from evdense.training.train import TrainConfig
 
     section: dict = {}
     if args.config:

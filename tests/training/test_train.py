@@ -338,3 +338,12 @@ def test_config_rejects_unknown_keys():
         TrainConfig.from_dict({"data": {"nope": 1}})
     with pytest.raises(ValueError, match="tbptt"):
         TrainConfig.from_dict({"sequence_length": 10, "tbptt_length": 4})
+
+
+def test_training_runs_as_a_module_with_the_train_command():
+    import subprocess
+    import sys
+
+    out = subprocess.run([sys.executable, "-m", "evdense.training", "--help"],
+                         capture_output=True, text=True, check=True).stdout  # fmt: skip
+    assert "usage: evdense train" in out and "--workers" in out

@@ -1,7 +1,8 @@
 """Snakemake adapter of rule train_model: simulate the training set, train, keep the best weights."""
 
 from evdense.log import setup_logging
-from evdense.training.train import TrainConfig, run_training
+from evdense.training.stage import run_training
+from evdense.training.train import TrainConfig
 
 sm = snakemake  # noqa: F821 (injected by Snakemake)
 setup_logging(sm.log[0])
