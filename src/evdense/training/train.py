@@ -246,21 +246,19 @@ class SequenceSampler:
         xs, ys = [], []
         for _ in range(self.conf.batch_size):
             s = int(rng.integers(s_all))
-            if L <= w_all:
+            if L <= w_all:  # consecutive windows as simulated
                 k = int(rng.integers(0, w_all - L + 1))
+                win = tgt = slice(k, k + L)
+                back = None
             else:
-                k = int(rng.integers(0, 2 * (w_all - 1)))
+                win, tgt, back = playback_path(w_all, int(rng.integers(0, 2 * (w_all - 1))), L)
             y0 = int(rng.integers(0, h - c + 1))
             x0 = int(rng.integers(0, w - c + 1))
             flip, invert = rng.random(2) < 0.5
-            if L <= w_all:
-                v = self.voxels[s, k : k + L, :, y0 : y0 + c, x0 : x0 + c].float()
-                t = self.targets[s, k : k + L, y0 : y0 + c, x0 : x0 + c].float()
-            else:
-                win, tgt, back = playback_path(w_all, k, L)
-                v = self.voxels[s, win, :, y0 : y0 + c, x0 : x0 + c].float()
+            v = self.voxels[s, win, :, y0 : y0 + c, x0 : x0 + c].float()
+            if back is not None:
                 v[back] = -v[back].flip(1)
-                t = self.targets[s, tgt, y0 : y0 + c, x0 : x0 + c].float()
+            t = self.targets[s, tgt, y0 : y0 + c, x0 : x0 + c].float()
             if self.conf.augment and flip:
                 v, t = v.flip(-1), t.flip(-1)
             if self.conf.augment and invert:
