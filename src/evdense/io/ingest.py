@@ -18,7 +18,6 @@ hold is listed in the manifest):
 
 from __future__ import annotations
 
-import json
 import os
 import shutil
 from dataclasses import asdict, dataclass, field
@@ -31,7 +30,7 @@ from evdense.camera import Camera, load_camera
 from evdense.config import section_from_dict
 from evdense.errors import as_input_error
 from evdense.events.container import EventWriter
-from evdense.formats.files import write_atomic
+from evdense.formats.files import write_atomic, write_json_atomic
 from evdense.formats.frames import frame_name, write_timestamps
 from evdense.io.base import DEFAULT_CHUNK_EVENTS, Recording
 from evdense.io.detect import open_recording
@@ -325,12 +324,7 @@ def ingest_recording(
         raise as_input_error(recording, e) from e
     os.replace(staged, events_out)
     if manifest_out is not None:
-        manifest_out = Path(manifest_out)
-        manifest_out.parent.mkdir(parents=True, exist_ok=True)
-        write_atomic(
-            manifest_out,
-            lambda p: p.write_text(json.dumps(asdict(result), indent=2, default=str) + "\n"),
-        )
+        write_json_atomic(manifest_out, asdict(result))
     return result
 
 

@@ -7,26 +7,16 @@ ground truth, evaluation), :mod:`~evdense.mvs.stage` (the stage function :func:`
 """
 
 from evdense.mvs.fusion import FusionConfig
-from evdense.mvs.patchmatch import (
-    DepthNormalMap,
-    FilterConfig,
-    PatchMatchConfig,
-    StereoView,
-    estimate_depth_map,
-    filter_depth_map,
-)
+from evdense.mvs.patchmatch import FilterConfig, PatchMatchConfig, estimate_depth_map
 from evdense.mvs.stage import MVSConfig, run_mvs
 from evdense.mvs.workspace import ViewSelectionConfig
 
 __all__ = [
-    "DepthNormalMap",
     "FilterConfig",
     "FusionConfig",
     "MVSConfig",
     "PatchMatchConfig",
-    "StereoView",
     "ViewSelectionConfig",
     "estimate_depth_map",
-    "filter_depth_map",
     "run_mvs",
 ]

@@ -47,6 +47,12 @@ def _light(low: float, tile_m: float) -> dict:
     }
 
 
+def _wall(rmax: int, tile_m: float) -> dict:
+    """A wall material: mottled dead leaves (radii 3 to ``rmax`` texels) on a 1024-texel texture."""
+    texture = {"type": "dead_leaves", "size": 1024, "rmin": 3, "rmax": rmax, "variation": 0.3}
+    return {"texture": texture, "tile_m": tile_m}
+
+
 ROOM = {
     "name": "room",
     "description": "A 7 x 6 x 3 m room with five textured boxes on the floor, a poster, a bright "
@@ -54,16 +60,7 @@ ROOM = {
     "duration": 4.0,
     "shading": {"direction": [0.3, -0.5, 1.0], "ambient": 0.55},
     "materials": {
-        "wall": {
-            "texture": {
-                "type": "dead_leaves",
-                "size": 1024,
-                "rmin": 3,
-                "rmax": 120,
-                "variation": 0.3,
-            },
-            "tile_m": 4.0,
-        },
+        "wall": _wall(120, 4.0),
         "floor": {
             "texture": {"type": "noise", "size": 1024, "beta": 2.4, "low": 0.06, "high": 0.7},
             "tile_m": 4.0,
@@ -143,16 +140,7 @@ DESK = {
     "duration": 4.0,
     "shading": {"direction": [-0.4, -0.6, 1.0], "ambient": 0.5},
     "materials": {
-        "wall": {
-            "texture": {
-                "type": "dead_leaves",
-                "size": 1024,
-                "rmin": 3,
-                "rmax": 100,
-                "variation": 0.3,
-            },
-            "tile_m": 3.0,
-        },
+        "wall": _wall(100, 3.0),
         "floor": {
             "texture": {"type": "image", "path": "skimage:gravel", "repeat": 4, "variation": 0.5},
             "tile_m": 4.0,
