@@ -40,6 +40,7 @@ from __future__ import annotations
 
 import json
 import os
+from collections.abc import Iterable, Iterator
 from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 from typing import Any
@@ -570,15 +571,17 @@ def generate_dataset(
                 max_attempts = 3 * count + 10
                 jobs = ((conf, split, _seed(seed, split, i)) for i in range(max_attempts))
                 results = pool.imap(_simulate_job, jobs) if pool else map(_simulate_job, jobs)
+                attempts = [0]  # progress counts kept sequences; rejected attempts reported apart
+                kept = _kept(results, attempts)
                 made = 0
-                for seq in progress(results, total=count, desc=f"simulate {split}"):
-                    if seq is not None:
-                        _write_sequence(
-                            g.create_group(f"seq_{made:05d}"), seq, split in store_events
-                        )
-                        made += 1
+                for seq in progress(kept, total=count, desc=f"simulate {split}"):
+                    _write_sequence(g.create_group(f"seq_{made:05d}"), seq, split in store_events)
+                    made += 1
                     if made == count:
                         break
+                if attempts[0] > made:
+                    log.info("%s: %d of %d attempts had too few events", split,
+                             attempts[0] - made, attempts[0])  # fmt: skip
                 if made < count:
                     raise ValueError(
                         f"{out_path}: only {made} of {count} {split} sequences had enough events "
@@ -593,6 +596,14 @@ def generate_dataset(
     os.replace(tmp, out_path)
     log.info("wrote %s (%s)", out_path, ", ".join(f"{k}: {v}" for k, v in splits.items()))
     return out_path
+
+
+def _kept(results: Iterable[Sequence | None], attempts: list[int]) -> Iterator[Sequence]:
+    """The sequences of ``results`` that had enough events; ``attempts[0]`` counts all of them."""
+    for seq in results:
+        attempts[0] += 1
+        if seq is not None:
+            yield seq
 
 
 def _write_sequence(g: h5py.Group, seq: Sequence, store_events: bool) -> None:
