@@ -15,7 +15,8 @@ clip 3 as in the pipeline). Per window, prediction and GT (log radiance, as our 
 each rescaled by their 1st-99th percentiles; the figure is the fraction of pixels whose absolute
 error exceeds 0.3. Printed: its maximum and mean over windows 100 onwards (target: max < 5 %),
 and the mean SSIM over the same windows; then the mean error fraction per block of 100 windows
-from the first, which tells a drift (growing) from a steady bias (flat).
+from the first, which tells a drift (growing) from a steady bias (flat); and each network's tone
+curve: its mean rescaled prediction over the pixels in each tenth of the rescaled GT.
 """
 
 from __future__ import annotations
@@ -121,21 +122,40 @@ def main() -> None:
     print("| method | max error fraction | mean error fraction | mean SSIM | mean error fraction "
           "per 100 windows (from window 0) |")  # fmt: skip
     print("| --- | --- | --- | --- | --- |")
+    tone: dict[str, list[float]] = {}
     for name, ckpt in methods.items():
         frames = NetworkReconstructor(load_checkpoint(ckpt).net, voxel_clip=3.0).run(vox)
-        frac, ssim = [], []
+        frac, ssim, pairs = [], [], []
         for k in range(len(frames)):
             p = normalize_intensity(frames[k])
             g = normalize_intensity(logr[k])
             frac.append(float(np.mean(np.abs(p - g) > 0.3)))
             if k >= 100:
                 ssim.append(image_metrics(p, g)["ssim"])
+                pairs.append((p.ravel(), g.ravel()))
         # the error's course in time: drift grows block by block, a steady bias does not
         blocks = " / ".join(f"{np.mean(frac[i : i + 100]):.0%}" for i in range(0, len(frac), 100))
         late = frac[100:]
         print(
             f"| {name} | {max(late):.2%} | {np.mean(late):.2%} | {np.mean(ssim):.3f} | {blocks} |"
         )
+        tone[name] = tone_curve(np.concatenate([a for a, _ in pairs]),
+                                np.concatenate([b for _, b in pairs]))  # fmt: skip
+    # the tone curve: which GT levels a network keeps apart (the plain walls, floor and ceiling
+    # are the GT's upper half here) and which it merges into one
+    print("\nmean rescaled prediction per tenth of the rescaled GT (windows >= 100)\n")
+    print("| method | " + " | ".join(f"{i / 10:.1f}-{(i + 1) / 10:.1f}" for i in range(10)) + " |")
+    print("| --- " * 11 + "|")
+    for name, curve in tone.items():
+        print(f"| {name} | " + " | ".join(f"{v:.2f}" for v in curve) + " |")
+
+
+def tone_curve(pred: np.ndarray, gt: np.ndarray, bins: int = 10) -> list[float]:
+    """Mean of ``pred`` over the pixels whose ``gt`` falls in each of ``bins`` equal parts of [0, 1]."""
+    idx = np.clip((gt * bins).astype(int), 0, bins - 1)
+    sums = np.bincount(idx, weights=pred, minlength=bins)
+    counts = np.bincount(idx, minlength=bins)
+    return [float(s / c) if c else float("nan") for s, c in zip(sums, counts, strict=True)]
 
 
 if __name__ == "__main__":
