@@ -18,6 +18,7 @@ from evdense.training.heldout import EvalConfig, evaluate_methods, frame_scores,
 from evdense.training.losses import (
     LossWeights,
     gradient_matching,
+    lowfreq_l1,
     reconstruction_loss,
     ssim,
     temporal_consistency,
@@ -168,6 +169,26 @@ def test_gradient_matching_sees_misplaced_edges_not_offsets():
     _, on = reconstruction_loss(pred, tgt, LossWeights(gradient=2.0))
     assert off["gradient"] == 0.0 and on["gradient"] > 0.01
     assert on["loss"] == pytest.approx(off["loss"] + 2.0 * on["gradient"], rel=1e-6)
+
+
+def test_lowfreq_l1_sees_large_scale_levels_not_fine_texture():
+    # a plain left half darker than the right half, both covered by a fine checkerboard
+    yy, xx = torch.meshgrid(torch.arange(32), torch.arange(32), indexing="ij")
+    checker = ((yy + xx) % 2).double()[None, None] * 0.2
+    target = checker + torch.where(xx < 16, 0.2, 0.6).double()[None, None]
+    # the texture lost, the levels kept: block means are unchanged, so no low-frequency error
+    plain = torch.where(xx < 16, 0.3, 0.7).double()[None, None]
+    assert float(lowfreq_l1(plain, target)) == pytest.approx(0.0, abs=1e-6)
+    # the texture kept, the two halves merged to one level: 0.2 off everywhere at both block sizes
+    merged = checker + 0.4
+    assert float(lowfreq_l1(merged, target)) == pytest.approx(0.2)
+    # a 4 px frame has no 8 x 8 block: only the 4 x 4 blocks count
+    assert float(lowfreq_l1(merged[..., :4, :4], target[..., :4, :4])) == pytest.approx(0.2)
+    pred, tgt = torch.stack([merged, merged]), torch.stack([target, target])
+    _, off = reconstruction_loss(pred, tgt, LossWeights())
+    _, on = reconstruction_loss(pred, tgt, LossWeights(lowfreq=3.0))
+    assert off["lowfreq"] == 0.0 and on["lowfreq"] == pytest.approx(0.2)
+    assert on["loss"] == pytest.approx(off["loss"] + 3.0 * 0.2, rel=1e-6)
 
 
 def test_window_normalisation_matches_inference():

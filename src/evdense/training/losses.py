@@ -14,7 +14,11 @@ small weight ``anchor`` keeps the raw output in the target's [0, 1] range (the p
 the horizontal and vertical finite differences of prediction and target at 1, 1/2, 1/4 and 1/8
 resolution, as in the scale-invariant depth losses of MiDaS, Ranftl et al. 2020): it rewards
 edges in the right place at every scale, which pixel L1 and an 11-px SSIM weigh little on flat
-regions; on the affine-aligned frames when ``affine_invariant`` is on.
+regions; on the affine-aligned frames when ``affine_invariant`` is on. ``LossWeights.lowfreq`` adds
+the L1 between 4 x 4 and 8 x 8 block means of prediction and target (:func:`lowfreq_l1`): it
+weighs the large-scale levels (a plain wall against the floor beside it) that the SSIM window and
+the texture-dominated pixel L1 leave to chance, so that a network cannot render fine texture with
+a high gain and the steps between large plain regions with a low one.
 """
 
 from __future__ import annotations
@@ -104,6 +108,22 @@ def gradient_matching(pred: Tensor, target: Tensor, scales: int = 4) -> Tensor:
     return total / max(used, 1)
 
 
+def lowfreq_l1(pred: Tensor, target: Tensor, blocks: tuple[int, ...] = (4, 8)) -> Tensor:
+    """Mean over ``blocks`` of the L1 between ``b x b`` block means of ``pred`` and ``target``.
+
+    ``pred``, ``target``: ``(N, 1, H, W)``. Blind to errors that average out within a block (noise,
+    texture detail); a block size that does not fit the frame is skipped.
+    """
+    total = pred.new_zeros(())
+    used = 0
+    for b in blocks:
+        if min(pred.shape[-2:]) < b:
+            continue
+        total = total + (F.avg_pool2d(pred, b) - F.avg_pool2d(target, b)).abs().mean()
+        used += 1
+    return total / max(used, 1)
+
+
 @dataclass
 class LossWeights:
     """Weights of the loss terms (config keys ``train.loss_*``)."""
@@ -120,6 +140,8 @@ class LossWeights:
     """Weight of a plain L1 on the raw output (keeps it in [0, 1] when ``affine_invariant``)."""
     gradient: float = 0.0
     """Weight of the multi-scale gradient-matching term (:func:`gradient_matching`)."""
+    lowfreq: float = 0.0
+    """Weight of the block-mean L1 (:func:`lowfreq_l1`)."""
 
 
 def reconstruction_loss(
@@ -141,6 +163,8 @@ def reconstruction_loss(
     total = weights.l1 * l1 + weights.ssim * (1 - s) + weights.temporal * tc
     grad = gradient_matching(aligned, flat_t) if weights.gradient else pred.new_zeros(())
     total = total + weights.gradient * grad
+    low = lowfreq_l1(aligned, flat_t) if weights.lowfreq else pred.new_zeros(())
+    total = total + weights.lowfreq * low
     if weights.anchor:
         total = total + weights.anchor * raw_l1
     return total, {
@@ -149,5 +173,6 @@ def reconstruction_loss(
         "temporal": float(tc.detach()),
         "raw_l1": float(raw_l1.detach()),
         "gradient": float(grad.detach()),
+        "lowfreq": float(low.detach()),
         "loss": float(total.detach()),
     }

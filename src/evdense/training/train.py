@@ -103,6 +103,10 @@ class TrainConfig:
     """Weight of a multi-scale gradient-matching loss (L1 of the differences of horizontal and
     vertical finite differences at 1, 1/2, 1/4 and 1/8 resolution; on the aligned frames when
     loss_affine_invariant is on); 0 = off."""
+    loss_lowfreq: float = 0.0
+    """Weight of an L1 between the 4 x 4 and 8 x 8 block means of prediction and target (the
+    large-scale levels, e.g. a plain wall against the floor; on the aligned frames when
+    loss_affine_invariant is on); 0 = off."""
     augment: bool = True
     """Random flips, quarter turns and polarity inversions."""
     augment_rotations: bool = True
@@ -159,6 +163,7 @@ class TrainConfig:
             self.loss_affine_invariant,
             self.loss_anchor,
             self.loss_gradient,
+            self.loss_lowfreq,
         )
 
 
