@@ -40,6 +40,18 @@ ERROR_NAMES = {
 }
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _digits(buf, i, n):  # pragma: no cover
+    """The decimal digits of ``buf`` from ``i``: ``(index after them, value, number of digits)``."""
+    v = np.int64(0)
+    d = 0
+    while i < n and buf[i] >= 48 and buf[i] <= 57:
+        v = v * 10 + (buf[i] - 48)
+        i += 1
+        d += 1
+    return i, v, d
+
+
 # Over 80 lines on purpose: a numba-compiled single-pass byte parser whose states (skip line,
 # number, field, error) share one cursor; split, it would pass the cursor through every call.
 @njit(cache=True, nogil=True)
@@ -85,12 +97,7 @@ def parse_block(
         if ne >= len(t_out):
             return ne, nl, ns, NO_ROOM, nl
         # timestamp: digits [. digits]
-        ip = np.int64(0)
-        nd = 0
-        while i < n and buf[i] >= 48 and buf[i] <= 57:
-            ip = ip * 10 + (buf[i] - 48)
-            i += 1
-            nd += 1
+        i, ip, nd = _digits(buf, i, n)
         fp = np.int64(0)
         nf = 0
         rnd = 0
@@ -122,12 +129,7 @@ def parse_block(
             if i < n and (buf[i] == 45 or buf[i] == 43):
                 neg = buf[i] == 45
                 i += 1
-            v = np.int64(0)
-            d = 0
-            while i < n and buf[i] >= 48 and buf[i] <= 57:
-                v = v * 10 + (buf[i] - 48)
-                i += 1
-                d += 1
+            i, v, d = _digits(buf, i, n)
             if d == 0:
                 if i >= n or buf[i] == 10 or buf[i] == 13:
                     return ne, nl, ns, MISSING_FIELD, nl
