@@ -123,9 +123,10 @@ def main() -> None:
           "per 100 windows (from window 0) |")  # fmt: skip
     print("| --- | --- | --- | --- | --- |")
     tone: dict[str, list[float]] = {}
+    raw: dict[str, np.ndarray] = {}
     for name, ckpt in methods.items():
         frames = NetworkReconstructor(load_checkpoint(ckpt).net, voxel_clip=3.0).run(vox)
-        frac, ssim = [], []
+        frac, ssim, spread = [], [], []
         sums, counts = np.zeros(10), np.zeros(10)
         for k in range(len(frames)):
             p = normalize_intensity(frames[k])
@@ -133,6 +134,7 @@ def main() -> None:
             frac.append(float(np.mean(np.abs(p - g) > 0.3)))
             if k >= 100:
                 ssim.append(image_metrics(p, g)["ssim"])
+                spread.append(np.percentile(frames[k], [1, 50, 99]))
                 idx = np.clip((g * 10).astype(int), 0, 9).ravel()  # tenth of the GT range
                 sums += np.bincount(idx, weights=p.ravel(), minlength=10)
                 counts += np.bincount(idx, minlength=10)
@@ -145,6 +147,7 @@ def main() -> None:
         tone[name] = [
             float(a / c) if c else float("nan") for a, c in zip(sums, counts, strict=True)
         ]
+        raw[name] = np.mean(spread, axis=0)
     # the tone curve: which GT levels a network keeps apart (the plain walls, floor and ceiling
     # are the GT's upper half here) and which it merges into one
     print("\nmean rescaled prediction per tenth of the rescaled GT (windows >= 100)\n")
@@ -152,6 +155,12 @@ def main() -> None:
     print("| --- " * 11 + "|")
     for name, curve in tone.items():
         print(f"| {name} | " + " | ".join(f"{v:.2f}" for v in curve) + " |")
+    # where the raw output spends its range: a median near the 99th percentile with a low 1st
+    # percentile means the few textured objects take most of the range and the plain surfaces the rest
+    print("\nraw network output, percentiles of each frame averaged over windows >= 100\n")
+    print("| method | 1 % | 50 % | 99 % |\n| --- | --- | --- | --- |")
+    for name, (p1, p50, p99) in raw.items():
+        print(f"| {name} | {p1:.3f} | {p50:.3f} | {p99:.3f} |")
 
 
 if __name__ == "__main__":
