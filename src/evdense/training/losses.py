@@ -17,8 +17,9 @@ edges in the right place at every scale, which pixel L1 and an 11-px SSIM weigh 
 regions; on the affine-aligned frames when ``affine_invariant`` is on. ``LossWeights.lowfreq`` adds
 the L1 between 4 x 4 and 8 x 8 block means of prediction and target (:func:`lowfreq_l1`): it
 weighs the large-scale levels (a plain wall against the floor beside it) that the SSIM window and
-the texture-dominated pixel L1 leave to chance, so that a network cannot render fine texture with
-a high gain and the steps between large plain regions with a low one.
+the texture-dominated pixel L1 leave to chance. It is aimed at a network that renders fine texture
+with a high gain and the steps between large plain regions with a low one; a short fine-tune at
+weight 2 did not change that (docs/benchmarks.md, issue 18's ablation).
 """
 
 from __future__ import annotations
