@@ -315,6 +315,24 @@ def test_init_weights_starts_from_them_and_refuses_another_shape(tmp_path):
         build_model(TrainConfig.from_dict({**TINY, "init_weights": str(tmp_path / "narrow.pt")}))
 
 
+def test_the_e2vid_class_network_trains_and_loads_as_what_it_is(tiny_set, tmp_path):
+    conf, path = tiny_set
+    conf = TrainConfig.from_dict(
+        {**TINY, "arch": "e2vid", "base_channels": 4, "num_encoders": 2, "max_steps": 4,
+         "val_every": 4, "checkpoint_every": 4}
+    )  # fmt: skip
+    train_model(conf, path, tmp_path / "run", tmp_path / "w.pt")
+    loaded = load_checkpoint(tmp_path / "w.pt")
+    assert loaded.arch == "e2vid"
+    assert loaded.hparams["num_encoders"] == 2 and loaded.hparams["norm"] == "none"
+    v_vox, _ = load_split(path, "val")  # 64 x 48: not a multiple of 2**num_encoders in general
+    rec = NetworkReconstructor(loaded.net, device="cpu")
+    img = rec(v_vox[0, 0].astype(np.float32)[:, :45, :61])
+    assert img.shape == (45, 61) and np.isfinite(img).all()
+    with pytest.raises(ValueError, match="train.arch"):
+        build_model(TrainConfig.from_dict({**TINY, "arch": "unet"}))
+
+
 @pytest.mark.skipif(not torch.cuda.is_available(), reason="no CUDA device")
 def test_training_on_cuda_matches_cpu_and_resumes_on_cpu(tmp_path):
     # planar sequences only: this set needs no open3d, so the test runs on a bare CUDA machine

@@ -37,7 +37,7 @@ from evdense.formats.files import write_atomic, write_text_atomic
 from evdense.log import get_logger
 from evdense.recon.checkpoints import load_checkpoint, save_checkpoint
 from evdense.recon.inference import pick_device
-from evdense.recon.networks import FireNet, detach_states
+from evdense.recon.networks import ReconstructionNet, build_network, detach_states
 from evdense.training.data import TrainDataConfig, load_split, read_config
 from evdense.training.losses import LossWeights, reconstruction_loss, ssim
 
@@ -58,10 +58,18 @@ class TrainConfig:
     """Simulated validation sequences (training distribution, other seeds; picks the best checkpoint)."""
     num_heldout_sequences: int = 24
     """Simulated held-out sequences (unseen textures, objects, motions, HDR) for the quality table."""
+    arch: str = "firenet"
+    """Network trained: "firenet" (FireNet: full resolution, ConvGRU, 38 k parameters at 16
+    channels) or "e2vid" (an E2VID-class recurrent U-Net with ConvGRU cells and no batch norm:
+    each encoder halves the resolution, so it sees far wider context at a similar cost per pixel)."""
     base_channels: int = 16
-    """FireNet feature channels."""
+    """Feature channels (FireNet: at every layer; e2vid: after the head, doubled by each encoder)."""
     num_residual_blocks: int = 2
-    """FireNet residual blocks (the first is recurrent)."""
+    """Residual blocks (FireNet: after the head, the first recurrent; e2vid: at the bottleneck)."""
+    num_encoders: int = 3
+    """e2vid only: stride-2 recurrent encoders (input sides are padded to a multiple of 2**this)."""
+    kernel_size: int = 3
+    """Kernel of FireNet's head, or of every e2vid head, encoder and decoder convolution."""
     batch_size: int = 4
     """Crops per step."""
     crop_size: int = 64
@@ -284,7 +292,7 @@ class SequenceSampler:
 
 @torch.no_grad()
 def validate(
-    net: FireNet, voxels: torch.Tensor, targets: torch.Tensor, weights: LossWeights
+    net: ReconstructionNet, voxels: torch.Tensor, targets: torch.Tensor, weights: LossWeights
 ) -> dict[str, float]:
     """Run ``net`` over whole validation sequences from a zero state; mean loss terms and SSIM.
 
@@ -374,15 +382,26 @@ def describe_device(dev: torch.device) -> str:
     return f"{dev} ({torch.get_num_threads()} threads)"
 
 
-def build_model(conf: TrainConfig, init: bool = True) -> FireNet:
-    """A FireNet with the run's hyper-parameters, initialised from ``conf.seed``, or (``init``)
-    with the weights of ``conf.init_weights`` when set (they must have the run's architecture)."""
-    torch.manual_seed(conf.seed)
-    net = FireNet(
+def model_hparams(conf: TrainConfig) -> dict[str, Any]:
+    """Constructor arguments of the run's ``conf.arch`` network."""
+    hp: dict[str, Any] = dict(
         num_bins=conf.data.bins,
         base_channels=conf.base_channels,
         num_residual_blocks=conf.num_residual_blocks,
+        kernel_size=conf.kernel_size,
     )
+    if conf.arch == "e2vid":
+        hp.update(num_encoders=conf.num_encoders, norm="none", recurrent_block_type="convgru")
+    elif conf.arch != "firenet":
+        raise ValueError(f"train.arch must be 'firenet' or 'e2vid', not {conf.arch!r}")
+    return hp
+
+
+def build_model(conf: TrainConfig, init: bool = True) -> ReconstructionNet:
+    """The ``conf.arch`` network with the run's hyper-parameters, initialised from ``conf.seed``,
+    or (``init``) with the weights of ``conf.init_weights`` when set (same architecture)."""
+    torch.manual_seed(conf.seed)
+    net = build_network(conf.arch, **model_hparams(conf))
     if init and conf.init_weights:
         loaded = load_checkpoint(conf.init_weights)
         try:
@@ -390,15 +409,14 @@ def build_model(conf: TrainConfig, init: bool = True) -> FireNet:
         except RuntimeError as e:
             raise ValueError(
                 f"train.init_weights {conf.init_weights}: {loaded.arch} {loaded.hparams} does not "
-                f"fit the run's FireNet (base_channels {conf.base_channels}, "
-                f"num_residual_blocks {conf.num_residual_blocks}, bins {conf.data.bins}): {e}"
+                f"fit the run's {conf.arch} {model_hparams(conf)}: {e}"
             ) from None
         log.info("initial weights from %s", conf.init_weights)
     return net
 
 
 def _train_step(
-    net: FireNet,
+    net: ReconstructionNet,
     opt: torch.optim.Optimizer,
     x: torch.Tensor,
     y: torch.Tensor,
