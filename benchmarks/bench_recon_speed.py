@@ -1,7 +1,7 @@
 """Reconstruction speed: milliseconds per frame of each network, per thread count.
 
 Usage: PYTHONPATH=src .venv/bin/python benchmarks/bench_recon_speed.py
-           [--size 346x260] [--frames 30] [--threads 2 1] [--nets firenet firenet_plus e2vid]
+           [--size 346x260] [--frames 30] [--threads 2 1] [--nets firenet firenet_plus e2vid W.pt]
 
 Times ``NetworkReconstructor.__call__`` (input normalisation, network with the recurrent state
 carried over, clipping, copy back to numpy): the per-frame cost of the stage without file I/O.
@@ -19,7 +19,8 @@ waits for the GPU).
 
 Input: voxel grids (5 bins) of 25,000 random events per window. FireNet and FireNet+ use the
 published weights when the anchors folder is present (random weights otherwise); E2VID
-(lightweight) has random weights, which does not change its speed. Printed per network and
+(lightweight) has random weights, which does not change its speed. A ``.pt`` path in ``--nets``
+times that checkpoint (its own architecture, e.g. a ``train.arch: e2vid`` candidate). Printed per network and
 thread count: median and best wall-clock milliseconds per frame of each variant, CPU milliseconds
 per frame of the optimised one (all threads), and the median of the per-frame speed-up, which
 the load of other processes changes far less than the times themselves.
@@ -61,6 +62,9 @@ def voxels(n: int, width: int, height: int, events: int = 25_000, seed: int = 0)
 
 
 def network(name: str) -> tuple[ReconstructionNet, str]:
+    if name.endswith((".pt", ".pth", ".tar")):  # a checkpoint of ours, e.g. a trained candidate
+        loaded = load_checkpoint(name)
+        return loaded.net, "file"
     path = ANCHORS / "weights" / PUBLISHED.get(name, "-")
     if path.is_file():
         return load_checkpoint(path).net, "published"
@@ -131,6 +135,7 @@ def main() -> None:
     )
     for name in args.nets:
         net, origin = network(name)
+        name = getattr(net, "arch", name) if origin == "file" else name
         for threads in args.threads:
             torch.set_num_threads(threads)
             r = compare(net, grids, device=args.device)
