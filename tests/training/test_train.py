@@ -13,7 +13,13 @@ from evdense.events.voxel import voxel_grid
 from evdense.recon.checkpoints import load_checkpoint, save_checkpoint
 from evdense.recon.inference import NetworkReconstructor
 from evdense.recon.postprocess import standardize_nonzero
-from evdense.training.data import TrainDataConfig, generate_dataset, load_split, simulate_sequence
+from evdense.training.data import (
+    TrainDataConfig,
+    generate_dataset,
+    load_split,
+    random_scene_spec,
+    simulate_sequence,
+)
 from evdense.training.heldout import EvalConfig, evaluate_methods, frame_scores, read_heldout
 from evdense.training.losses import (
     LossWeights,
@@ -101,6 +107,20 @@ def test_both_generators_make_sequences(generator):
     assert seq.voxels.shape == (10, 5, 48, 64) and np.isfinite(seq.log_radiance).all()
     # the targets move: the camera (or the layers) moved between the first and the last window
     assert np.abs(seq.targets[-1] - seq.targets[0]).mean() > 0.01
+
+
+def test_low_contrast_fraction_gives_plain_walls_in_training_scenes_only():
+    def ratios(split, low_contrast):
+        out = []
+        for seed in range(20):
+            spec = random_scene_spec(np.random.default_rng(seed), split, False, 64, low_contrast)
+            out += [m["texture"]["high"] / m["texture"]["low"] for m in spec["materials"].values()]
+        return np.array(out)
+
+    assert ratios("train", 0.0).min() > 3.6  # the default recipe: every surface high-contrast
+    plain = ratios("train", 1.0)
+    assert plain.max() <= 3.0 + 1e-9 and plain.min() >= 1.05 - 1e-9
+    assert np.array_equal(ratios("heldout", 0.0), ratios("heldout", 1.0))
 
 
 def test_heldout_split_does_not_follow_the_training_recipe():

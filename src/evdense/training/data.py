@@ -128,6 +128,10 @@ class TrainDataConfig:
     """Give up on a sequence whose windows are not complete after this many renders (bounds the cost of one sequence)."""
     texture_size: int = 512
     """Side of the procedural textures, texels."""
+    low_contrast_fraction: float = 0.0
+    """Fraction of the 3D scenes' surface textures (train and val) drawn with a low contrast: mean
+    level log-uniform in [0.03, 0.8], high / low ratio log-uniform in [1.05, 3] (plain or faintly
+    textured walls), instead of low 0.02-0.15 and high 0.55-1.0. At 0 no random draw is added."""
 
 
 HELDOUT_RECIPE = {
@@ -153,10 +157,16 @@ def _loguniform(rng: np.random.Generator, lo: float, hi: float) -> float:
 # ---------------------------------------------------------------------------------------------
 
 
-def _random_texture(rng: np.random.Generator, split: str, size: int) -> dict:
+def _random_texture(
+    rng: np.random.Generator, split: str, size: int, low_contrast: float = 0.0
+) -> dict:
     low = float(rng.uniform(0.02, 0.15))
     high = float(rng.uniform(0.55, 1.0))
     seed = int(rng.integers(0, 2**31))
+    if split != "heldout" and low_contrast > 0 and rng.random() < low_contrast:
+        mean = float(np.exp(rng.uniform(np.log(0.03), np.log(0.8))))
+        half = 0.5 * float(rng.uniform(np.log(1.05), np.log(3.0)))
+        low, high = mean * np.exp(-half), min(1.0, mean * np.exp(half))
     if split == "heldout":
         kind = rng.choice(["checker", "noise_var", "image", "image"])
         if kind == "checker":
@@ -186,19 +196,26 @@ def _random_texture(rng: np.random.Generator, split: str, size: int) -> dict:
             "high": high}  # fmt: skip
 
 
-def random_scene_spec(rng: np.random.Generator, split: str, hdr: bool, size: int = 512) -> dict:
+def random_scene_spec(
+    rng: np.random.Generator, split: str, hdr: bool, size: int = 512, low_contrast: float = 0.0
+) -> dict:
     """A random scene spec (see :mod:`evdense.sim.scene`) in front of a camera at the origin.
 
     The camera looks along +z (world = initial camera frame, metres). A large back plane at 1.5 to
     4 m fills the view; boxes (train) or boxes, cylinders and a floor (held-out) stand in front of
     it; with ``hdr`` a light panel (radiance times the dataset's dynamic range) is added.
+    ``low_contrast``: the fraction of train/val textures drawn with a low contrast
+    (:attr:`TrainDataConfig.low_contrast_fraction`).
     """
     depth = float(rng.uniform(1.5, 4.0))
     tilt = Rotation.from_rotvec(rng.normal(0, 0.3, 3) * np.array([1, 1, 0.2]))
     normal = tilt.apply([0.0, 0.0, -1.0])
     up = tilt.apply([0.0, -1.0, 0.0])
     materials: dict[str, Any] = {
-        "back": {"texture": _random_texture(rng, split, size), "tile_m": float(rng.uniform(0.8, 4))}
+        "back": {
+            "texture": _random_texture(rng, split, size, low_contrast),
+            "tile_m": float(rng.uniform(0.8, 4)),
+        }
     }
     objects: list[dict] = [
         {"type": "plane", "center": [0.0, 0.0, depth], "size": [40.0, 40.0],
@@ -208,7 +225,7 @@ def random_scene_spec(rng: np.random.Generator, split: str, hdr: bool, size: int
     for i in range(n_obj):
         name = f"obj{i}"
         materials[name] = {
-            "texture": _random_texture(rng, split, size),
+            "texture": _random_texture(rng, split, size, low_contrast),
             "tile_m": float(rng.uniform(0.3, 1.5)),
         }
         z = float(rng.uniform(0.9, depth - 0.3))
@@ -368,7 +385,7 @@ def _sequence_recipe(
     else:
         kind = "hdr" if rng.random() < conf.hdr_fraction else "smooth"
     hdr = kind == "hdr"
-    spec = random_scene_spec(rng, split, hdr, conf.texture_size)
+    spec = random_scene_spec(rng, split, hdr, conf.texture_size, conf.low_contrast_fraction)
     if split == "heldout":
         dyn = _loguniform(rng, 20.0, 100.0) if hdr else 1.0
     else:
