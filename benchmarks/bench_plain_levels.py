@@ -22,6 +22,7 @@ import h5py
 import numpy as np
 from scipy.ndimage import uniform_filter
 
+from evdense.evaluate.images import normalize_intensity
 from evdense.training.data import load_split
 
 
@@ -30,8 +31,7 @@ def plain_stats(frames: np.ndarray, voxels: np.ndarray, tone_mapped: bool) -> di
     grids ``(N, B, H, W)``; ``tone_mapped``: the frames are targets in [0, 1] (clipped ends)."""
     share, lv_plain, lv_tex, act_plain, act_tex = [], [], [], [], []
     for t, v in zip(frames.astype(np.float32), voxels, strict=True):
-        lo, hi = np.percentile(t, [1, 99])
-        r = np.clip((t - lo) / max(hi - lo, 1e-6), 0, 1)
+        r = normalize_intensity(t)
         m = uniform_filter(r, 7)
         sd = np.sqrt(np.maximum(uniform_filter(r * r, 7) - m * m, 0))
         inner = (r > 0.005) & (r < 0.995)

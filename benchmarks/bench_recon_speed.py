@@ -20,10 +20,10 @@ waits for the GPU).
 Input: voxel grids (5 bins) of 25,000 random events per window. FireNet and FireNet+ use the
 published weights when the anchors folder is present (random weights otherwise); E2VID
 (lightweight) has random weights, which does not change its speed. A ``.pt`` path in ``--nets``
-times that checkpoint (its own architecture, e.g. a ``train.arch: e2vid`` candidate). Printed per network and
-thread count: median and best wall-clock milliseconds per frame of each variant, CPU milliseconds
-per frame of the optimised one (all threads), and the median of the per-frame speed-up, which
-the load of other processes changes far less than the times themselves.
+times that checkpoint (its own architecture, e.g. a ``train.arch: e2vid`` candidate). Printed
+per network and thread count: median and best wall-clock milliseconds per frame of each
+variant, CPU milliseconds per frame of the optimised one (all threads), and the median of the
+per-frame speed-up, which the load of other processes changes far less than the times themselves.
 On a machine shared with other jobs, set ``OMP_WAIT_POLICY=PASSIVE`` (the Snakemake rule does).
 """
 

@@ -113,8 +113,8 @@ def calibrate(logr: np.ndarray, scales: tuple[float, ...] = (0.05, 0.1, 0.15, 0.
           f"{0.3 * span.min():.2f}-{0.3 * span.max():.2f} log units\n")  # fmt: skip
     print("| smooth error, std in log units | max error fraction | mean error fraction |")
     print("| --- | --- | --- |")
+    g = [normalize_intensity(x) for x in late]
     for a in scales:
-        g = [normalize_intensity(x) for x in late]
         frac = [np.mean(np.abs(normalize_intensity(x + a * field) - y) > 0.3)
                 for x, y in zip(late, g, strict=True)]  # fmt: skip
         print(f"| {a:.2f} | {max(frac):.2%} | {np.mean(frac):.2%} |")

@@ -164,9 +164,8 @@ def _random_texture(
     high = float(rng.uniform(0.55, 1.0))
     seed = int(rng.integers(0, 2**31))
     if split != "heldout" and low_contrast > 0 and rng.random() < low_contrast:
-        mean = float(np.exp(rng.uniform(np.log(0.03), np.log(0.8))))
-        half = 0.5 * float(rng.uniform(np.log(1.05), np.log(3.0)))
-        low, high = mean * np.exp(-half), min(1.0, mean * np.exp(half))
+        mean, ratio = _loguniform(rng, 0.03, 0.8), _loguniform(rng, 1.05, 3.0)
+        low, high = mean / np.sqrt(ratio), min(1.0, mean * np.sqrt(ratio))
     if split == "heldout":
         kind = rng.choice(["checker", "noise_var", "image", "image"])
         if kind == "checker":
