@@ -2,7 +2,7 @@
 
 Usage: PYTHONPATH=src .venv/bin/python benchmarks/bench_recon_real.py
            [--ours resources/weights/evfirenet.pt [more.pt ...]] [--anchors ../shared/anchors]
-           [--events-per-pixel 0.278 0.093] [--threads 2]
+           [--events-per-pixel 0.278 0.093] [--threads 2] [--trace]
 
 Clips (real DAVIS240C recordings of the Event Camera Dataset, in the anchors folder; none of our
 weights was ever tuned on them): ``slider_depth`` (its first 50,000 events and the APS frames of
@@ -12,7 +12,9 @@ the pipeline's default density: 25,000 events at 346 x 260), with its own input 
 the pipeline's voxel clip. Metric: :mod:`evdense.evaluate.real_frames` (per-frame 1st-99th
 percentile rescaling as in EVREAL, SSIM and MSE at the best shift within 10 pixels). Prints one
 table per window size and the verdicts of issue 18 (ours >= FireNet on every clip, mean >=
-FireNet + 0.02).
+FireNet + 0.02). ``--trace`` also prints every frame's SSIM with the index of its window, which
+shows whether a method improves or degrades as windows accumulate (use small windows, e.g.
+``--events-per-pixel 0.046``, to get many windows out of these short clips).
 """
 
 from __future__ import annotations
@@ -37,6 +39,7 @@ def main() -> None:
     ap.add_argument("--events-per-pixel", nargs="+", type=float, default=[0.278, 0.093])
     ap.add_argument("--voxel-clip", type=float, default=3.0)
     ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--trace", action="store_true", help="print each frame's SSIM and window")
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
     data = Path(args.anchors) / "data"
@@ -61,6 +64,9 @@ def main() -> None:
                 rows = evaluate_clip(
                     clip, lambda net=net: NetworkReconstructor(net, voxel_clip=args.voxel_clip), n
                 )
+                if args.trace:
+                    cells = " ".join(f"w{r['window']}={r['ssim']:.3f}" for r in rows)
+                    print(f"trace N={n} {name} {clip.name}: {cells}")
                 table.setdefault(name, {})[clip.name] = (
                     float(np.mean([r["ssim"] for r in rows])),
                     float(np.mean([r["mse"] for r in rows])),

@@ -137,19 +137,11 @@ def shifted_metrics(pred: np.ndarray, ref: np.ndarray, max_shift: int) -> dict[s
     return {"mse": s["mse"], "ssim": s["ssim"], "dx": dx, "dy": dy}
 
 
-def evaluate_clip(
-    clip: RealClip,
-    make: Callable[[], Reconstructor],
-    events_per_window: int,
-    bins: int = 5,
-    max_shift: int = 10,
-) -> list[dict[str, float]]:
-    """Run a fresh method from ``make()`` over ``clip`` and score it against each of its frames.
-
-    Windows of ``events_per_window`` events (a last, shorter window is dropped). A frame with a
-    time is compared with the window whose end is nearest, when that is within one window's span
-    of the first or last window; a frame without one with the last window. One row per frame.
-    """
+def reconstruct_clip(
+    clip: RealClip, make: Callable[[], Reconstructor], events_per_window: int, bins: int = 5
+) -> tuple[np.ndarray, list[np.ndarray]]:
+    """Run a fresh method from ``make()`` over ``clip`` in windows of ``events_per_window`` events
+    (a last, shorter window is dropped): the time of each window's last event (us) and its frame."""
     rec = make()
     n = int(events_per_window)
     ends, frames = [], []
@@ -162,7 +154,23 @@ def evaluate_clip(
         ends.append(int(clip.t[a + n - 1]))
     if not frames:
         raise ValueError(f"{clip.name}: fewer than {n} events ({len(clip.t)})")
-    ends_a = np.array(ends)
+    return np.array(ends, dtype=np.int64), frames
+
+
+def evaluate_clip(
+    clip: RealClip,
+    make: Callable[[], Reconstructor],
+    events_per_window: int,
+    bins: int = 5,
+    max_shift: int = 10,
+) -> list[dict[str, float]]:
+    """Run a fresh method from ``make()`` over ``clip`` and score it against each of its frames.
+
+    Windows as :func:`reconstruct_clip`. A frame with a time is compared with the window whose
+    end is nearest, when that is within one window's span of the first or last window; a frame
+    without one with the last window. One row per frame.
+    """
+    ends_a, frames = reconstruct_clip(clip, make, events_per_window, bins)
     span = (ends_a[-1] - int(clip.t[0])) / len(ends_a)
     rows = []
     for k, (t_us, img) in enumerate(clip.frames):
@@ -173,6 +181,6 @@ def evaluate_clip(
                 continue
             j = int(np.argmin(np.abs(ends_a - t_us)))
         s = shifted_metrics(frames[j], img, max_shift)
-        dt = None if t_us is None else (ends[j] - t_us) * 1e-3
+        dt = None if t_us is None else (int(ends_a[j]) - t_us) * 1e-3
         rows.append({"frame": k, "window": j, "dt_ms": dt, **s})
     return rows
