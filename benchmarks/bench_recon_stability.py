@@ -126,6 +126,9 @@ def main() -> None:
     ap.add_argument("--anchors", default=str(ROOT.parent / "shared" / "anchors"))
     ap.add_argument("--windows", type=int, default=520)
     ap.add_argument("--data", default=str(ROOT / "results/benchmarks/stability_lowtex.h5"))
+    ap.add_argument(
+        "--voxel-clip", type=float, default=3.0, help="the pipeline's default; 0 = none"
+    )
     ap.add_argument("--threads", type=int, default=2)
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
@@ -150,7 +153,9 @@ def main() -> None:
     tone: dict[str, list[float]] = {}
     raw: dict[str, np.ndarray] = {}
     for name, ckpt in methods.items():
-        frames = NetworkReconstructor(load_checkpoint(ckpt).net, voxel_clip=3.0).run(vox)
+        frames = NetworkReconstructor(load_checkpoint(ckpt).net, voxel_clip=args.voxel_clip).run(
+            vox
+        )
         frac, ssim, spread = [], [], []
         sums, counts = np.zeros(10), np.zeros(10)
         for k in range(len(frames)):

@@ -19,7 +19,7 @@ the L1 between 4 x 4 and 8 x 8 block means of prediction and target (:func:`lowf
 weighs the large-scale levels (a plain wall against the floor beside it) that the SSIM window and
 the texture-dominated pixel L1 leave to chance. It is aimed at a network that renders fine texture
 with a high gain and the steps between large plain regions with a low one; a short fine-tune at
-weight 2 did not change that (docs/benchmarks.md, issue 18's ablation).
+weights 2 and 8 did not change that (the ablation table in docs/benchmarks.md).
 """
 
 from __future__ import annotations

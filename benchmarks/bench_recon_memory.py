@@ -1,0 +1,146 @@
+"""Does a reconstruction network remember a plain surface after an edge has crossed it?
+
+Usage: PYTHONPATH=src .venv/bin/python benchmarks/bench_recon_memory.py
+           [--ours resources/weights/evfirenet.pt [more.pt ...]] [--anchors ../shared/anchors]
+           [--contrast-sigma 0.03] [--events-per-pixel 0.1] [--threads 2]
+
+A probe built from exact geometry, not from a training generator: a 240 x 180 sensor looks at a
+plain surface (the top 60 % of the view) above a strip of 1/f texture that scrolls sideways all
+the time (the bottom 30 %), so windows of N events keep coming from the strip. In the first
+second a bar 40 px wide and as tall as the surface crosses it once, left to right, and leaves;
+for the next second the surface is plain again. Two cases: a dark bar (a fifth of the radiance)
+over a light surface, and a light bar (five times the radiance) over a dark one. Every pixel of
+the surface sees the bar arrive and leave, so an ideal integrator of the events gives a uniform
+surface back: the events where the bar arrived are undone by those where it left. A network that
+forgets (a leaky, high-pass response) leaves a trail whose strength grows with the time since
+the bar passed, the ghosts behind moving edges seen on real recordings.
+
+Events come from our ESIM core (:func:`evdense.sim.esim.simulate_event_stream`) with equal ON and
+OFF thresholds of 0.2, no noise, and a per-pixel threshold spread of each ``--contrast-sigma``.
+Each network starts from an empty state. Printed per network, the mean of the two cases: the
+residual contrast on the surface once the bar has left (the 2nd-98th percentile span of the
+surface over the frame's 1st-99th, so 0 for a uniform surface; the surface's edges and the strip
+are left out), averaged over the windows of three intervals after the bar left. About 2 x 0.8 M
+events, 2 x 100 windows after the crossing; about 40 s per network on 2 threads.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from evdense.events.container import Events
+from evdense.events.voxel import voxel_grid
+from evdense.recon.checkpoints import load_checkpoint
+from evdense.recon.inference import NetworkReconstructor
+from evdense.sim.esim import EventCameraConfig, simulate_event_stream
+from evdense.sim.textures import spectral_noise
+
+ROOT = Path(__file__).resolve().parents[1]
+W, H = 240, 180
+SURFACE = slice(0, int(0.6 * H))
+STRIP = slice(int(0.7 * H), H)
+T_CROSS, T_END = 1.0, 2.0
+
+
+CASES = {"dark bar": (0.5, 0.1), "light bar": (0.1, 0.5)}
+"""Radiance of the surface and of the bar in each case."""
+
+
+def make_scene(surface: float, bar: float, seed: int = 0):
+    """``radiance_at(t)`` of the probe scene and the mask of the surface's inner pixels."""
+    rng = np.random.default_rng(seed)
+    tex = 0.1 + 0.8 * spectral_noise(256, 2.5, 2.0, 1.5, rng)
+    tex = np.tile(tex, (1, 4))  # 1024 px wide, periodic
+    side = 40
+    speed = (W + side) / (T_CROSS - 0.1)  # px/s: the bar has left 0.1 s before T_CROSS
+
+    def radiance_at(t: float) -> np.ndarray:
+        img = np.full((H, W), surface)
+        img[SURFACE.stop : STRIP.start] = 0.3  # a band between surface and strip
+        shift = t * 60.0  # the strip scrolls at 60 px/s (linear interpolation between texels)
+        i, f = int(np.floor(shift)), shift - np.floor(shift)
+        moved = (1 - f) * np.roll(tex, -i, axis=1) + f * np.roll(tex, -i - 1, axis=1)
+        img[STRIP] = moved[: STRIP.stop - STRIP.start, :W]
+        left = t * speed - side
+        a, b = int(np.clip(np.floor(left), 0, W)), int(np.clip(np.ceil(left + side), 0, W))
+        if b > a:
+            cols = np.arange(a, b) + 0.5
+            cover = np.clip(np.minimum(cols - left, left + side - cols), 0, 1)  # soft edges
+            img[SURFACE, a:b] = surface * (1 - cover) + bar * cover
+        return img
+
+    mask = np.zeros((H, W), bool)
+    mask[SURFACE.start + 4 : SURFACE.stop - 4, 4 : W - 4] = True
+    return radiance_at, mask
+
+
+def simulate(radiance_at, contrast_sigma: float) -> Events:
+    cam = EventCameraConfig(contrast_pos=0.2, contrast_neg=0.2, contrast_sigma=contrast_sigma,
+                            noise_rate_hz=0.0, hot_pixel_fraction=0.0, refractory_us=0.0,
+                            chunk_events=1 << 16)  # fmt: skip
+    chunks: list[Events] = []
+    simulate_event_stream(radiance_at, 0.0, T_END, cam, np.random.default_rng(1), chunks.append)
+    return Events.concatenate(chunks)
+
+
+INTERVALS = ((0.0, 0.2), (0.2, 0.6), (0.6, 1.0))
+"""Seconds after the last square left over which the residual contrast is averaged."""
+
+
+def score(net, ev: Events, mask: np.ndarray, n: int, voxel_clip: float) -> list[float]:
+    """Residual contrast of the surface averaged over each of :data:`INTERVALS`."""
+    rec = NetworkReconstructor(net, voxel_clip=voxel_clip)
+    times, spans = [], []
+    for a in range(0, len(ev.t) - n + 1, n):
+        sl = slice(a, a + n)
+        out = np.asarray(rec(voxel_grid(ev.t[sl], ev.x[sl], ev.y[sl], ev.p[sl], 5, H, W)))
+        t_end = ev.t[a + n - 1] * 1e-6
+        if t_end <= T_CROSS:
+            continue
+        lo, hi = np.percentile(out, [1, 99])
+        p2, p98 = np.percentile(out[mask], [2, 98])
+        times.append(t_end - T_CROSS)
+        spans.append((p98 - p2) / max(hi - lo, 1e-9))
+    t, sp = np.array(times), np.array(spans)
+    return [float(sp[(t >= a) & (t < b)].mean()) for a, b in INTERVALS]
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--ours", nargs="+", default=[str(ROOT / "resources/weights/evfirenet.pt")])
+    ap.add_argument("--anchors", default=str(ROOT.parent / "shared" / "anchors"))
+    ap.add_argument("--contrast-sigma", nargs="+", type=float, default=[0.03])
+    ap.add_argument("--events-per-pixel", type=float, default=0.1)
+    ap.add_argument("--voxel-clip", type=float, default=3.0)
+    ap.add_argument("--threads", type=int, default=2)
+    args = ap.parse_args()
+    torch.set_num_threads(args.threads)
+    methods = {Path(p).stem: p for p in args.ours}
+    for name, fname in (("FireNet", "firenet_1000.pth.tar"), ("FireNet+", "firenet_plus.pth")):
+        if (Path(args.anchors) / "weights" / fname).is_file():
+            methods[name] = str(Path(args.anchors) / "weights" / fname)
+    nets = {k: load_checkpoint(v).net for k, v in methods.items()}
+    n = int(round(args.events_per_pixel * W * H))
+    for sigma in args.contrast_sigma:
+        spans = {name: [] for name in nets}
+        for surface, bar in CASES.values():
+            radiance_at, mask = make_scene(surface, bar)
+            ev = simulate(radiance_at, sigma)
+            for name, net in nets.items():
+                spans[name].append(score(net, ev, mask, n, args.voxel_clip))
+        cols = " | ".join(f"{a}-{b} s" for a, b in INTERVALS)
+        print(f"\nthreshold spread {sigma}, windows of {n} events: residual contrast on the "
+              f"surface after the bar left, mean of {' and '.join(CASES)}\n")  # fmt: skip
+        print(f"| network | {cols} |")
+        print("| --- " * (len(INTERVALS) + 1) + "|")
+        for name, rows in spans.items():
+            cells = " | ".join(f"{v:.3f}" for v in np.mean(rows, axis=0))
+            print(f"| {name} | {cells} |")
+
+
+if __name__ == "__main__":
+    main()
