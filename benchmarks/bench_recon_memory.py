@@ -22,8 +22,8 @@ OFF thresholds of 0.2, no noise, and a per-pixel threshold spread of each ``--co
 Each network starts from an empty state. Printed per network, the mean of the two cases: the
 residual contrast on the surface once the bar has left (the 2nd-98th percentile span of the
 surface over the frame's 1st-99th, so 0 for a uniform surface; the surface's edges and the strip
-are left out), averaged over the windows of three intervals after the bar left. About 2 x 0.8 M
-events, 2 x 100 windows after the crossing; about 40 s per network on 2 threads.
+are left out), averaged over the windows of three intervals after the bar left. About 2 x 1.3 M
+events, 2 x 100 windows after the crossing; 4.5 minutes for 7 networks on one thread.
 """
 
 from __future__ import annotations
