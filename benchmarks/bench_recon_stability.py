@@ -2,12 +2,13 @@
 
 Usage: PYTHONPATH=src .venv/bin/python benchmarks/bench_recon_stability.py
            [--ours resources/weights/evfirenet.pt ...] [--anchors ../shared/anchors]
-           [--windows 520] [--data results/benchmarks/stability_lowtex.h5]
+           [--windows 520] [--data results/benchmarks/stability_lowtex.h5] [--contrast-sigma 0.03]
 
 The scene (not a training scene: held-out pictures, its own geometry and path) is a room with
 plain, faintly mottled walls, floor and ceiling, a poster of skimage's ``moon`` and two boxes; the
 camera walks back and forth along a slow loop for ``--windows`` windows of 0.278 events per pixel
-(the pipeline's density) at 173 x 130 pixels, through an event camera with thresholds 0.2 +- 0.03,
+(the pipeline's density) at 173 x 130 pixels, through an event camera with thresholds 0.2 +- 0.03
+(``--contrast-sigma``: the per-pixel spread, ON and OFF drawn apart),
 background noise 0.1 Hz and a 100 us refractory period. The simulation is cached in ``--data``.
 
 Every network runs over all windows from an empty state (input normalisation of its own, voxel
@@ -78,14 +79,14 @@ def scene_spec() -> dict:
     }  # fmt: skip
 
 
-def simulate(path: Path, windows: int) -> None:
+def simulate(path: Path, windows: int, contrast_sigma: float = 0.03) -> None:
     render = RenderConfig(
         camera={"width": W, "height": H, "fx": F, "fy": F, "cx": W / 2, "cy": H / 2}
     )
     scene = build_scene(scene_spec(), {"speed": 1.0, "dynamic_range": 1.0, "duration": 120.0,
                                        "seed": 0}, render, None)  # fmt: skip
     renderer = Renderer(scene, supersample=2)
-    cam = EventCameraConfig(contrast_pos=0.2, contrast_neg=0.2, contrast_sigma=0.03,
+    cam = EventCameraConfig(contrast_pos=0.2, contrast_neg=0.2, contrast_sigma=contrast_sigma,
                             noise_rate_hz=0.1, hot_pixel_fraction=0.0, chunk_events=4096)  # fmt: skip
     conf = TrainDataConfig(width=W, height=H, windows_per_sequence=windows, max_duration_s=120.0,
                            max_renders=10**9)  # fmt: skip
@@ -99,6 +100,7 @@ def simulate(path: Path, windows: int) -> None:
         f["voxels"] = seq.voxels.astype(np.float16)
         f["log_radiance"] = seq.log_radiance
         f.attrs["recipe"] = json.dumps(seq.recipe, default=str)
+        f.attrs["contrast_sigma"] = contrast_sigma
 
 
 def calibrate(logr: np.ndarray, scales: tuple[float, ...] = (0.05, 0.1, 0.15, 0.2, 0.3)) -> None:
@@ -129,16 +131,25 @@ def main() -> None:
     ap.add_argument(
         "--voxel-clip", type=float, default=3.0, help="the pipeline's default; 0 = none"
     )
+    ap.add_argument(
+        "--contrast-sigma", type=float, default=0.03,
+        help="per-pixel threshold spread of the simulated camera (thresholds 0.2); give --data a "
+        "file of its own for a value other than the default",
+    )  # fmt: skip
     ap.add_argument("--threads", type=int, default=2)
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
     data = Path(args.data)
     if not data.is_file():
         t0 = time.perf_counter()
-        simulate(data, args.windows)
+        simulate(data, args.windows, args.contrast_sigma)
         print(f"simulated {args.windows} windows in {time.perf_counter() - t0:.0f} s -> {data}")
     with h5py.File(data, "r") as f:
         vox, logr = f["voxels"][()].astype(np.float32), f["log_radiance"][()]
+        cached_sigma = float(f.attrs.get("contrast_sigma", 0.03))  # files before the option: 0.03
+    if abs(cached_sigma - args.contrast_sigma) > 1e-9:
+        raise SystemExit(f"{data}: simulated with --contrast-sigma {cached_sigma}, not "
+                         f"{args.contrast_sigma}; give --data another file")  # fmt: skip
     # one row per checkpoint, named by its folder and file when there are several
     methods = {f"{Path(p).parent.name}/{Path(p).stem}" if len(args.ours) > 1 else "ours": p
                for p in args.ours}  # fmt: skip
