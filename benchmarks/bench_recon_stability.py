@@ -79,7 +79,7 @@ def scene_spec() -> dict:
     }  # fmt: skip
 
 
-def simulate(path: Path, windows: int, contrast_sigma: float = 0.03) -> None:
+def simulate(path: Path, windows: int, contrast_sigma: float) -> None:
     render = RenderConfig(
         camera={"width": W, "height": H, "fx": F, "fy": F, "cx": W / 2, "cy": H / 2}
     )
