@@ -37,6 +37,7 @@ from evdense.training.train import (
     normalize_windows,
     playback_path,
     train_model,
+    update_ema,
     validate,
 )
 
@@ -316,6 +317,47 @@ def test_resume_gives_the_uninterrupted_state(tiny_set, tmp_path):
     sa, sb = a["optimizer"]["state"], b["optimizer"]["state"]
     assert all(torch.equal(sa[i]["exp_avg"], sb[i]["exp_avg"]) for i in sa)
     assert a["rng"] == b["rng"]
+
+
+def test_weight_average_moves_towards_the_trained_weights():
+    a, b = (
+        build_model(TrainConfig.from_dict(TINY)),
+        build_model(TrainConfig.from_dict({**TINY, "seed": 1})),
+    )
+    avg = build_model(TrainConfig.from_dict(TINY))
+    update_ema(avg, b, decay=0.75, step=10_000)
+    for k, v in avg.state_dict().items():
+        torch.testing.assert_close(v, 0.75 * a.state_dict()[k] + 0.25 * b.state_dict()[k])
+    before = {k: v.clone() for k, v in avg.state_dict().items()}
+    update_ema(avg, b, decay=0.999, step=0)  # early steps move by (1 + step) / (10 + step) at most
+    for k, v in avg.state_dict().items():
+        torch.testing.assert_close(v, 0.1 * before[k] + 0.9 * b.state_dict()[k])
+    with pytest.raises(ValueError, match="ema_decay"):
+        TrainConfig.from_dict({**TINY, "ema_decay": 1.0}).check()
+
+
+@pytest.mark.slow
+def test_weight_average_is_saved_and_resumes(tiny_set, tmp_path):
+    _, path = tiny_set
+    conf = TrainConfig.from_dict(
+        {**TINY, "max_steps": 6, "checkpoint_every": 3, "val_every": 6, "ema_decay": 0.9}
+    )
+    straight = tmp_path / "straight"
+    train_model(conf, path, straight, straight / "w.pt")
+    split = tmp_path / "split"
+    train_model(conf, path, split, split / "w.pt", max_steps=3)
+    train_model(conf, path, split, split / "w.pt")
+    a = torch.load(latest_checkpoint(straight), weights_only=True)
+    b = torch.load(latest_checkpoint(split), weights_only=True)
+    saved = load_checkpoint(straight / "w.pt").net.state_dict()
+    for k in a["ema"]:
+        assert torch.equal(a["ema"][k], b["ema"][k]), k
+        assert torch.equal(saved[k], a["ema"][k]), k
+    assert any(not torch.equal(a["ema"][k], a["model"][k]) for k in a["model"])
+    plain = tmp_path / "plain"
+    train_model(TrainConfig.from_dict({**TINY, "max_steps": 3}), path, plain, plain / "w.pt")
+    with pytest.raises(ValueError, match="ema_decay"):
+        train_model(conf, path, plain, plain / "w.pt")
 
 
 def test_init_weights_starts_from_them_and_refuses_another_shape(tmp_path):

@@ -22,6 +22,7 @@ the log and to ``out_dir/history.jsonl``.
 
 from __future__ import annotations
 
+import copy
 import json
 import math
 import time
@@ -95,6 +96,10 @@ class TrainConfig:
     """Steps of linear learning-rate warm-up."""
     grad_clip: float = 1.0
     """Largest gradient norm (0 = no clipping)."""
+    ema_decay: float = 0.0
+    """Keep an exponential moving average of the weights with this decay per step (0 = off; 0.995
+    averages over about the last 200 steps). When on, validation, the best-weights choice and the
+    saved weights use the average; the resumable checkpoints hold both."""
     loss_l1: float = 1.0
     """Weight of the L1 loss."""
     loss_ssim: float = 1.0
@@ -154,6 +159,8 @@ class TrainConfig:
                              "(set train.reverse_playback to play sequences back and forth)")  # fmt: skip
         if self.crop_size > min(self.data.width, self.data.height):
             raise ValueError("train.crop_size exceeds the simulated camera size")
+        if not 0.0 <= self.ema_decay < 1.0:
+            raise ValueError(f"train.ema_decay must lie in [0, 1), not {self.ema_decay}")
 
     def splits(self) -> dict[str, int]:
         """Split name -> number of sequences to simulate."""
@@ -445,6 +452,17 @@ def _train_step(
     return out
 
 
+@torch.no_grad()
+def update_ema(ema: ReconstructionNet, net: ReconstructionNet, decay: float, step: int) -> None:
+    """Move ``ema``'s weights towards ``net``'s: ``ema = d ema + (1 - d) net`` with
+    ``d = min(decay, (1 + step) / (10 + step))``, so the first steps are not dominated by the start."""
+    d = min(decay, (1 + step) / (10 + step))
+    for pe, p in zip(ema.parameters(), net.parameters(), strict=True):
+        pe.lerp_(p, 1.0 - d)
+    for be, b in zip(ema.buffers(), net.buffers(), strict=True):
+        be.copy_(b)
+
+
 # Over 80 lines on purpose: the run's resumable state (step, best loss and step, RNG, time spent)
 # lives in these locals, which save_state() writes and the resume block restores; the step itself
 # is _train_step and the validation validate().
@@ -482,6 +500,8 @@ def train_model(
     net = build_model(conf, init=ckpt is None).to(device=dev, memory_format=cl)
     log.info("training on %s", describe_device(dev))
     net.train()
+    ema = copy.deepcopy(net) if conf.ema_decay > 0 else None
+    judged = net if ema is None else ema  # what is validated and saved
     opt = torch.optim.Adam(net.parameters(), lr=conf.lr)
     rng = np.random.default_rng(conf.seed)
     step, best_loss, best_step, best_val, spent = 0, math.inf, -1, {}, 0.0
@@ -489,6 +509,12 @@ def train_model(
     if ckpt is not None:
         state = _load_state(ckpt)
         net.load_state_dict(state["model"])
+        if ema is not None:
+            if "ema" not in state:
+                raise ValueError(
+                    f"{ckpt}: made without train.ema_decay; resume it without the option"
+                )
+            ema.load_state_dict(state["ema"])
         opt.load_state_dict(state["optimizer"])
         rng.bit_generator.state = json.loads(state["rng"])
         step, best_loss, best_step = state["step"], state["best_loss"], state["best_step"]
@@ -520,6 +546,7 @@ def train_model(
                 "format": CHECKPOINT_FORMAT,
                 "step": step,
                 "model": net.state_dict(),
+                **({} if ema is None else {"ema": ema.state_dict()}),
                 "optimizer": opt.state_dict(),
                 "rng": json.dumps(rng.bit_generator.state),
                 "best_loss": best_loss,
@@ -547,6 +574,8 @@ def train_model(
         for terms in _train_step(net, opt, x, y, conf, weights):
             for key, v in terms.items():
                 running[key] = running.get(key, 0.0) + v
+        if ema is not None:
+            update_ema(ema, net, conf.ema_decay, step)
         step += 1
         spent = spent0 + time.monotonic() - t_session
         if step % conf.log_every == 0 or step == stop:
@@ -563,7 +592,7 @@ def train_model(
         out_of_time = conf.time_budget_min > 0 and spent > conf.time_budget_min * 60
         last = step == stop or out_of_time
         if step % conf.val_every == 0 or last:
-            val = validate(net, v_vox, v_tgt, weights)
+            val = validate(judged, v_vox, v_tgt, weights)
             write_history({"step": step, "val": val, "seconds": spent})
             log.info(
                 "step %d validation loss %.4f ssim %.4f", step, val["loss"], val["ssim_clipped"]
@@ -571,7 +600,7 @@ def train_model(
             if val["loss"] < best_loss:
                 best_loss, best_step, best_val = val["loss"], step, val
                 save_checkpoint(
-                    net,
+                    judged,
                     weights_path,
                     {**provenance_base, "step": step, "validation": val, "train_seconds": spent},
                 )
