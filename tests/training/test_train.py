@@ -33,6 +33,7 @@ from evdense.training.train import (
     SequenceSampler,
     TrainConfig,
     build_model,
+    export_state_weights,
     latest_checkpoint,
     normalize_windows,
     playback_path,
@@ -354,10 +355,17 @@ def test_weight_average_is_saved_and_resumes(tiny_set, tmp_path):
         assert torch.equal(a["ema"][k], b["ema"][k]), k
         assert torch.equal(saved[k], a["ema"][k]), k
     assert any(not torch.equal(a["ema"][k], a["model"][k]) for k in a["model"])
+    for averaged, key in ((True, "ema"), (False, "model")):
+        out = export_state_weights(latest_checkpoint(straight), tmp_path / f"{key}.pt", averaged)
+        loaded = load_checkpoint(out)
+        assert loaded.info["step"] == 6 and loaded.info["weights"] == key
+        assert all(torch.equal(v, a[key][k]) for k, v in loaded.net.state_dict().items())
     plain = tmp_path / "plain"
     train_model(TrainConfig.from_dict({**TINY, "max_steps": 3}), path, plain, plain / "w.pt")
     with pytest.raises(ValueError, match="ema_decay"):
         train_model(conf, path, plain, plain / "w.pt")
+    with pytest.raises(ValueError, match="step_0000003.pt"):
+        export_state_weights(latest_checkpoint(plain), tmp_path / "none.pt", averaged=True)
 
 
 def test_init_weights_starts_from_them_and_refuses_another_shape(tmp_path):

@@ -36,7 +36,7 @@ import torch
 from evdense.config import section_from_dict
 from evdense.formats.files import write_atomic, write_text_atomic
 from evdense.log import get_logger
-from evdense.recon.checkpoints import load_checkpoint, save_checkpoint
+from evdense.recon.checkpoints import infer_architecture, load_checkpoint, save_checkpoint
 from evdense.recon.inference import pick_device
 from evdense.recon.networks import ReconstructionNet, build_network, detach_states
 from evdense.training.data import TrainDataConfig, load_split, read_config
@@ -611,6 +611,26 @@ def train_model(
             log.info("time budget of %.1f min reached at step %d", conf.time_budget_min, step)
             break
     return TrainResult(weights_path, step, best_step, best_val, spent)
+
+
+def export_state_weights(
+    state_path: str | Path, out_path: str | Path, averaged: bool = False
+) -> Path:
+    """Write the weights held in a resumable checkpoint (``RUN/checkpoints/step_*.pt``) in our
+    weights format (``.pt`` + ``.json``): the trained weights, or (``averaged``) the moving average
+    kept by a run with ``train.ema_decay``. The provenance names the checkpoint and its step."""
+    state_path = Path(state_path)
+    state = _load_state(state_path)
+    key = "ema" if averaged else "model"
+    if key not in state:
+        raise ValueError(
+            f"{state_path}: holds no averaged weights (trained without train.ema_decay)"
+        )
+    arch, hparams = infer_architecture(state[key])
+    net = build_network(arch, **hparams)
+    net.load_state_dict(state[key], strict=True)
+    info = {"exported_from": str(state_path), "step": state["step"], "weights": key}
+    return save_checkpoint(net, out_path, info)
 
 
 def update_provenance(weights_path: str | Path, extra: dict[str, Any]) -> None:
