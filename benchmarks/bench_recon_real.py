@@ -11,10 +11,13 @@ method starts from an empty state on windows of ``events-per-pixel x 240 x 180``
 the pipeline's default density: 25,000 events at 346 x 260), with its own input normalisation and
 the pipeline's voxel clip. Metric: :mod:`evdense.evaluate.real_frames` (per-frame 1st-99th
 percentile rescaling as in EVREAL, SSIM and MSE at the best shift within 10 pixels). Prints one
-table per window size and the verdicts of issue 18 (ours >= FireNet on every clip, mean >=
-FireNet + 0.02). ``--trace`` also prints every frame's SSIM with the index of its window, which
-shows whether a method improves or degrades as windows accumulate (use small windows, e.g.
-``--events-per-pixel 0.046``, to get many windows out of these short clips).
+table per window size and the verdicts of issue 18 (ours >= FireNet on every clip, mean >= FireNet
++ 0.02); given several weights (e.g. the checkpoints of one run, from ``export_checkpoints.py``),
+also the range of their means and each clip's lowest score, since a difference between recipes
+counts only beyond what checkpoints of one recipe differ by. ``--trace`` also prints every frame's
+SSIM with the index of its window, which shows whether a method improves or degrades as windows
+accumulate (use small windows, e.g. ``--events-per-pixel 0.046``, to get many windows out of these
+short clips).
 """
 
 from __future__ import annotations
@@ -89,6 +92,13 @@ def main() -> None:
             margin = np.mean([row[c][0] for c in names]) - np.mean([fn[c][0] for c in names])
             print(f"{name}: >= FireNet on every clip: {'yes' if each else 'no'}; "
                   f"mean margin {margin:+.3f} (target +0.02)")  # fmt: skip
+        ours = [name for name in table if not name.startswith("FireNet")]
+        if len(ours) > 1:
+            means = [np.mean([table[o][c][0] for c in names]) for o in ours]
+            lows = [min(table[o][c][0] for o in ours) for c in names]
+            print(f"over the {len(ours)} weights given: mean SSIM {min(means):.3f} to "
+                  f"{max(means):.3f} (their average {np.mean(means):.3f}); per clip the lowest "
+                  + " / ".join(f"{v:.3f}" for v in lows))  # fmt: skip
 
 
 if __name__ == "__main__":
