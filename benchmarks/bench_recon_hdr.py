@@ -9,7 +9,7 @@ dynamic range of 100,000), but only for the shipped weights and as part of a who
 script asks Snakemake for the frames alone (simulated scene, events, windows, voxels, frames), for
 the shipped weights (``ours``), published FireNet and every ``--ours NAME=WEIGHTS.pt`` given, with
 the pipeline's defaults otherwise (25,000-event windows), and scores them as the evaluation stage
-does (:func:`evdense.evaluate.images.evaluate_images`, up to 60 frames evenly spaced): SSIM
+does, against GT intensity rendered at each frame's time (:func:`evdense.evaluate.images.evaluate_images`, up to 60 frames evenly spaced): SSIM
 against the log-mapped GT after matching the frame's histogram to it (the report's figure), and
 SSIM with both rescaled by their own 1st-99th percentiles (GT in linear radiance). The datasets
 are those of a claim or experiment run (``results/<scene>_s1_dr100000/``): made once, reused.
@@ -54,7 +54,8 @@ def main() -> None:
     overlay.parent.mkdir(parents=True, exist_ok=True)
     overlay.write_text(yaml.safe_dump({"reconstruct": {"checkpoints": checkpoints}}))
     datasets = [f"{s}_s1_dr100000" for s in SCENES]
-    targets = [f"results/{d}/frames/{m}_{WINDOWS}" for d in datasets for m in methods]
+    targets = [f"results/{d}/gt" for d in datasets]
+    targets += [f"results/{d}/frames/{m}_{WINDOWS}" for d in datasets for m in methods]
     cmd = [sys.executable, "-m", "snakemake", "--cores", str(args.cores), "--configfile",
            "config/claim.yaml", str(overlay), "--", *targets]  # fmt: skip
     subprocess.run(cmd, cwd=ROOT, check=True)
