@@ -9,9 +9,10 @@ dynamic range of 100,000), but only for the shipped weights and as part of a who
 script asks Snakemake for the frames alone (simulated scene, events, windows, voxels, frames), for
 the shipped weights (``ours``), published FireNet and every ``--ours NAME=WEIGHTS.pt`` given, with
 the pipeline's defaults otherwise (25,000-event windows), and scores them as the evaluation stage
-does, against GT intensity rendered at each frame's time (:func:`evdense.evaluate.images.evaluate_images`, up to 60 frames evenly spaced): SSIM
-against the log-mapped GT after matching the frame's histogram to it (the report's figure), and
-SSIM with both rescaled by their own 1st-99th percentiles (GT in linear radiance). The datasets
+does (:func:`evdense.evaluate.images.evaluate_images`, up to 60 frames evenly spaced), against GT
+intensity rendered at each frame's time: SSIM against the log-mapped GT after matching the frame's
+histogram to it (the report's figure), and SSIM with both rescaled by their own 1st-99th
+percentiles (GT in linear radiance). The datasets
 are those of a claim or experiment run (``results/<scene>_s1_dr100000/``): made once, reused.
 Simulating the three scenes takes several minutes on two cores; each network's frames under one.
 """
@@ -45,6 +46,8 @@ def main() -> None:
         name, sep, path = item.partition("=")
         if not sep or not name.isidentifier() or not Path(path).is_file():
             raise SystemExit(f"--ours {item!r}: give NAME=WEIGHTS.pt with an existing file")
+        if name in ("ours", "firenet"):  # the shipped weights and published FireNet's rows
+            raise SystemExit(f"--ours {item!r}: the name {name!r} is taken; choose another")
         checkpoints[name] = str(Path(path).resolve())
     firenet = Path(args.anchors) / "weights" / "firenet_1000.pth.tar"
     if firenet.is_file():
