@@ -15,7 +15,9 @@ from evdense.evaluate.real_frames import (
 from evdense.training.planar import (
     HELDOUT_PICTURES,
     TRAIN_PICTURES,
+    TEXTURE_KINDS,
     PlanarScene,
+    _mosaic_texture,
     load_picture,
     random_texture,
 )
@@ -78,7 +80,7 @@ def test_planar_textures_and_renders_are_sane():
         pic = load_picture(name)
         assert pic.ndim == 2 and pic.min() >= 0 and pic.max() <= 1 and pic.std() > 0.05, name
     rng = np.random.default_rng(0)
-    for kind in ("picture", "dead_leaves", "noise", "flat", "shapes", "text", "grating"):
+    for kind in TEXTURE_KINDS:
         tex = random_texture(rng, 128, {kind: 1.0})
         assert tex.shape == (128, 128) and tex.dtype == np.float32
         assert tex.min() > 0 and tex.max() <= 1, kind
@@ -87,3 +89,23 @@ def test_planar_textures_and_renders_are_sane():
     assert a.shape == (48, 64) and (a > 0).all() and not np.allclose(a, b)
     again = PlanarScene(np.random.default_rng(1), 64, 48, 0.5, dynamic_range=1000.0)
     assert np.array_equal(again.radiance(0.25), b)
+
+
+def test_a_texture_draw_ignores_the_order_of_the_weights():
+    weights = {"picture": 0.3, "noise": 0.2, "flat": 0.2, "text": 0.1, "mosaic": 0.2}
+    backwards = dict(reversed(weights.items()))
+    for seed in range(6):
+        a = random_texture(np.random.default_rng(seed), 128, weights)
+        b = random_texture(np.random.default_rng(seed), 128, backwards)
+        assert np.array_equal(a, b)
+
+
+def test_mosaic_fills_occluding_disks_with_textures_of_their_own():
+    for seed in range(4):
+        # fills of 1/f noise (and the plain fill every mosaic may draw)
+        tex = _mosaic_texture(np.random.default_rng(seed), 256, {"noise": 1.0, "mosaic": 1.0})
+        assert tex.shape == (256, 256) and tex.min() > 0 and tex.max() <= 1
+        gy, gx = np.gradient(tex.astype(np.float64))
+        assert (np.hypot(gx, gy) > 1e-3).mean() > 0.5  # texture inside the disks, not plain disks
+        coarse = tex.reshape(16, 16, 16, 16).mean((1, 3))
+        assert coarse.std() > 0.1  # disks of unrelated levels side by side, not one noise field

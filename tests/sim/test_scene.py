@@ -8,7 +8,13 @@ import pytest
 from evdense.sim.presets import PRESETS
 from evdense.sim.render import Renderer
 from evdense.sim.scene import load_scene
-from evdense.sim.textures import TextureAtlas, dead_leaves, mip_pyramid, normalize_texture_spec
+from evdense.sim.textures import (
+    TextureAtlas,
+    dead_leaves,
+    dead_leaves_labels,
+    mip_pyramid,
+    normalize_texture_spec,
+)
 
 # a small camera with the DAVIS346 field of view, to keep renders fast
 SMALL = {
@@ -261,6 +267,9 @@ def test_textures_tile_and_mip_means():
         normalize_texture_spec({"type": "noise", "size": 100}, "t")
     img = dead_leaves(64, 2, 20, 3.0, np.random.default_rng(0))
     assert img.shape == (64, 64) and 0 <= img.min() and img.max() <= 1 and not np.isnan(img).any()
+    labels, values = dead_leaves_labels(64, 2, 20, 3.0, np.random.default_rng(0))
+    assert labels.min() >= 0 and labels.max() < len(values)  # the torus is covered
+    assert np.array_equal(img, values[labels])  # the same draw as the image
     pyr = mip_pyramid(img)
     assert [p.shape for p in pyr] == [(64 >> k, 64 >> k) for k in range(7)]
     for p in pyr:

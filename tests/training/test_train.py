@@ -447,6 +447,20 @@ def test_config_rejects_unknown_keys():
         TrainConfig.from_dict({"data": {"nope": 1}})
     with pytest.raises(ValueError, match="tbptt"):
         TrainConfig.from_dict({"sequence_length": 10, "tbptt_length": 4})
+    with pytest.raises(ValueError, match=r"planar_textures: unknown kinds \['leaves'\]"):
+        TrainConfig.from_dict({"data": {"planar_textures": {"leaves": 1.0}}})
+    with pytest.raises(ValueError, match="positive sum"):
+        TrainConfig.from_dict({"data": {"planar_textures": {"flat": 0.0}}})
+
+
+def test_planar_texture_weights_reach_the_generator():
+    def edges(kinds):
+        data = {**TINY["data"], "planar_fraction": 1.0, "planar_textures": kinds}
+        conf = TrainDataConfig(**data)
+        seqs = [simulate_sequence(conf, "train", i) for i in range(3)]
+        return np.mean([np.abs(np.diff(s.targets, axis=-1)).mean() for s in seqs if s is not None])
+
+    assert edges({"flat": 1.0}) < 0.5 * edges({"grating": 1.0, "text": 1.0})
 
 
 def test_training_runs_as_a_module_with_the_train_command():

@@ -162,40 +162,52 @@ def _make_texture_cached(frozen: tuple, seed: int) -> np.ndarray:
     return out
 
 
-def dead_leaves(
+def dead_leaves_labels(
     size: int, rmin: float, rmax: float, alpha: float, rng: np.random.Generator
-) -> np.ndarray:
-    """A periodic dead-leaves image ``(size, size)`` in ``[0, 1]``: occluding disks of random grey
-    levels with radii (pixels) drawn from ``p(r) ~ r^-alpha`` on ``[rmin, rmax]`` (scale invariant at
-    alpha = 3), painted front to back until the torus is covered.
+) -> tuple[np.ndarray, np.ndarray]:
+    """The occlusion layout of a periodic dead-leaves image: ``(labels, values)``, where ``labels``
+    ``(size, size)`` int32 is the index of the disk seen at each texel (``-1`` where none landed)
+    and ``values`` the uniform grey level drawn for each disk, in painting order. Radii (pixels)
+    follow ``p(r) ~ r^-alpha`` on ``[rmin, rmax]`` (scale invariant at alpha = 3); disks are
+    painted front to back until the torus is covered.
     """
-    img = np.full((size, size), np.nan, dtype=np.float32)
+    labels = np.full((size, size), -1, dtype=np.int32)
+    drawn: list[np.ndarray] = []
     uncovered = size * size
     ar = np.arange(-int(np.ceil(rmax)), int(np.ceil(rmax)) + 1)
     batch = 512
-    for _ in range(400):  # bounded: each batch covers a fixed expected fraction
+    for b in range(400):  # bounded: each batch covers a fixed expected fraction
         # inverse-CDF sampling of a truncated power law
         u = rng.random(batch)
         a1 = 1.0 - alpha
         radii = (rmin**a1 + u * (rmax**a1 - rmin**a1)) ** (1.0 / a1)
         centres = rng.integers(0, size, size=(batch, 2))
-        values = rng.random(batch).astype(np.float32)
-        for r, (cy, cx), val in zip(radii, centres, values, strict=True):
+        drawn.append(rng.random(batch).astype(np.float32))
+        for i, (r, (cy, cx)) in enumerate(zip(radii, centres, strict=True)):
             ri = int(np.ceil(r))
             off = ar[len(ar) // 2 - ri : len(ar) // 2 + ri + 1]
             rows = (cy + off) % size
             cols = (cx + off) % size
             disk = off[:, None] ** 2 + off[None, :] ** 2 <= r * r
-            block = img[np.ix_(rows, cols)]
-            paint = disk & np.isnan(block)
+            block = labels[np.ix_(rows, cols)]
+            paint = disk & (block < 0)
             if paint.any():
-                block[paint] = val
-                img[np.ix_(rows, cols)] = block
+                block[paint] = b * batch + i
+                labels[np.ix_(rows, cols)] = block
                 uncovered -= int(paint.sum())
         if uncovered == 0:
             break
-    img[np.isnan(img)] = 0.5
-    return img
+    return labels, np.concatenate(drawn)
+
+
+def dead_leaves(
+    size: int, rmin: float, rmax: float, alpha: float, rng: np.random.Generator
+) -> np.ndarray:
+    """A periodic dead-leaves image ``(size, size)`` in ``[0, 1]``: occluding disks of random grey
+    levels (:func:`dead_leaves_labels`); texels no disk covered are mid-grey.
+    """
+    labels, values = dead_leaves_labels(size, rmin, rmax, alpha, rng)
+    return np.where(labels >= 0, values[np.maximum(labels, 0)], np.float32(0.5)).astype(np.float32)
 
 
 def spectral_noise(

@@ -55,6 +55,7 @@ from evdense.log import get_logger, progress
 from evdense.sim.esim import EventCameraConfig, simulate_event_stream
 from evdense.sim.render import RenderConfig, Renderer
 from evdense.sim.scene import build_scene
+from evdense.training.planar import TEXTURE_KINDS, PlanarConfig
 
 log = get_logger("training")
 
@@ -128,10 +129,26 @@ class TrainDataConfig:
     """Give up on a sequence whose windows are not complete after this many renders (bounds the cost of one sequence)."""
     texture_size: int = 512
     """Side of the procedural textures, texels."""
+    planar_textures: dict[str, float] = field(
+        default_factory=lambda: dict(PlanarConfig().texture_weights)
+    )
+    """Relative frequency of each texture kind of the planar generator (picture, dead_leaves, noise,
+    flat, shapes, text, grating, mosaic; a kind left out is not drawn). The default leaves out
+    mosaic (textured dead leaves filled from the other kinds)."""
     low_contrast_fraction: float = 0.0
     """Fraction of the 3D scenes' surface textures (train and val) drawn with a low contrast: mean
     level log-uniform in [0.03, 0.8], high / low ratio log-uniform in [1.05, 3] (plain or faintly
     textured walls), instead of low 0.02-0.15 and high 0.55-1.0. At 0 no random draw is added."""
+
+    def check(self) -> None:
+        unknown = sorted(set(self.planar_textures) - set(TEXTURE_KINDS))
+        if unknown:
+            raise ValueError(f"train.data.planar_textures: unknown kinds {unknown} "
+                             f"(known: {list(TEXTURE_KINDS)})")  # fmt: skip
+        w = list(self.planar_textures.values())
+        if any(not v >= 0 for v in w) or not sum(w) > 0:
+            raise ValueError("train.data.planar_textures: weights must be >= 0 with a positive sum, "
+                             f"not {self.planar_textures}")  # fmt: skip
 
 
 HELDOUT_RECIPE = {
@@ -459,7 +476,8 @@ def _planar_recipe(
 
     hdr = rng.random() < conf.hdr_fraction
     dyn = _loguniform(rng, 10.0, conf.dynamic_range_max) if hdr else 1.0
-    scene = PlanarScene(rng, conf.width, conf.height, 0.5, dynamic_range=dyn)
+    planar = PlanarConfig(texture_weights=dict(conf.planar_textures))
+    scene = PlanarScene(rng, conf.width, conf.height, 0.5, dynamic_range=dyn, conf=planar)
     cam = _event_camera(conf, split, rng)
     n, epp = _window_size(conf, split, rng)
     info = {"generator": "planar", "kind": "hdr" if hdr else "smooth", "dynamic_range": dyn,

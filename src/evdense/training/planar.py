@@ -15,7 +15,8 @@ Textures (:func:`random_texture`) cover what the reconstruction meets in the wil
 pictures (every one that scikit-image and Matplotlib ship, but those kept for the held-out split),
 dead leaves and 1/f noise (natural-image statistics), flat and gradient surfaces with a few shapes
 or none (the low-texture walls and floors where a recurrent network must hold its state for
-hundreds of windows), text in several fonts, and gratings. Time is warped by a random speed
+hundreds of windows), text in several fonts, gratings, and mosaics of all of these (textured dead
+leaves, :func:`_mosaic_texture`; drawn only when ``train.data.planar_textures`` asks). Time is warped by a random speed
 profile, with near pauses, so windows cover very different durations and noise shares.
 
 Everything is drawn from one ``numpy.random.Generator``: a sequence is reproducible from its seed.
@@ -32,7 +33,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from evdense.sim.textures import dead_leaves, spectral_noise
+from evdense.sim.textures import dead_leaves, dead_leaves_labels, spectral_noise
 
 HELDOUT_PICTURES = ("moon", "text", "coins", "page", "cell", "immunohistochemistry", "checkerboard")
 """skimage.data pictures reserved for the held-out split (never used by this generator)."""
@@ -66,7 +67,7 @@ TRAIN_PICTURES = (
 )
 """Pictures the planar generator draws from (all installed with scikit-image and Matplotlib)."""
 
-TEXTURE_KINDS = ("picture", "dead_leaves", "noise", "flat", "shapes", "text", "grating")
+TEXTURE_KINDS = ("picture", "dead_leaves", "noise", "flat", "shapes", "text", "grating", "mosaic")
 
 
 @dataclass
@@ -84,7 +85,7 @@ class PlanarConfig:
             "grating": 0.08,
         }
     )
-    """Relative frequency of each texture kind."""
+    """Relative frequency of each texture kind (:data:`TEXTURE_KINDS`; a kind left out is not drawn)."""
     max_objects: int = 4
     """Most foreground objects in a scene."""
     supersample: int = 2
@@ -212,9 +213,35 @@ def _text_texture(rng: np.random.Generator, size: int, low: float, high: float) 
     return np.asarray(img, np.float32)
 
 
+def _mosaic_texture(rng: np.random.Generator, size: int, weights: dict[str, float]) -> np.ndarray:
+    """Textured dead leaves: the occlusion layout of a dead-leaves image whose disks are filled, each
+    with its own level and contrast, from a few textures of the other kinds.
+
+    A few dozen pictures cannot give the variety of a natural-image corpus; their pieces can be
+    recombined without end into scenes with natural-image structure: occluding edges at every
+    scale, plain regions of unrelated levels side by side, and texture inside objects.
+    """
+    inner = {k: w for k, w in weights.items() if k != "mosaic" and w > 0}
+    inner.setdefault("flat", 0.1)
+    fills = [random_texture(rng, size, inner) for _ in range(int(rng.integers(3, 7)))]
+    fills = [f - float(f.mean()) for f in fills]
+    labels, _ = dead_leaves_labels(size, float(rng.uniform(4, 16)), float(rng.uniform(60, 300)),
+                                   float(rng.uniform(2.0, 3.0)), rng)  # fmt: skip
+    n = int(labels.max()) + 1
+    which = rng.integers(0, len(fills), n)
+    level = rng.uniform(0.03, 1.0, n).astype(np.float32)
+    gain = np.exp(rng.uniform(np.log(0.3), np.log(1.5), n)).astype(np.float32)
+    lab = np.maximum(labels, 0)
+    tex = np.full((size, size), 0.5, np.float32)
+    for k, f in enumerate(fills):
+        sel = (which[lab] == k) & (labels >= 0)
+        tex[sel] = level[lab[sel]] + gain[lab[sel]] * f[sel]
+    return np.clip(tex, 0.01, 1).astype(np.float32)
+
+
 def random_texture(rng: np.random.Generator, size: int, weights: dict[str, float]) -> np.ndarray:
     """A random grey reflectance texture ``(size, size)`` float32 in (0, 1] (see module docstring)."""
-    kinds = list(weights)
+    kinds = [k for k in TEXTURE_KINDS if k in weights]  # a fixed order: the draw ignores dict order
     p = np.array([weights[k] for k in kinds], np.float64)
     kind = str(rng.choice(kinds, p=p / p.sum()))
     low = float(rng.uniform(0.02, 0.3))
@@ -261,6 +288,8 @@ def random_texture(rng: np.random.Generator, size: int, weights: dict[str, float
         return np.clip(tex, 0.01, 1).astype(np.float32)
     elif kind == "text":
         return np.clip(_text_texture(rng, size, low, high), 0.01, 1).astype(np.float32)
+    elif kind == "mosaic":
+        return _mosaic_texture(rng, size, weights)
     else:  # grating: sine or square wave of random period and orientation
         yy, xx = np.mgrid[:size, :size].astype(np.float32)
         th = float(rng.uniform(0, np.pi))
