@@ -14,8 +14,8 @@ from evdense.evaluate.real_frames import (
 )
 from evdense.training.planar import (
     HELDOUT_PICTURES,
-    TRAIN_PICTURES,
     TEXTURE_KINDS,
+    TRAIN_PICTURES,
     PlanarScene,
     _mosaic_texture,
     load_picture,
