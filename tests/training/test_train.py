@@ -147,6 +147,26 @@ def test_ssim_matches_scikit_image():
     assert ours == pytest.approx(ref, abs=1e-6)
     t = torch.tensor(x)[None, None]
     assert float(ssim(t, t)) == pytest.approx(1.0)
+    for data_range in (0.3, 0.1):  # the constants of a smaller range, as scikit-image sets them
+        ours = float(
+            ssim(torch.tensor(x)[None, None], torch.tensor(y)[None, None], data_range=data_range)
+        )
+        ref = structural_similarity(x, y, data_range=data_range, gaussian_weights=True, sigma=1.5,
+                                    use_sample_covariance=False)  # fmt: skip
+        assert ours == pytest.approx(ref, abs=1e-6)
+
+
+def test_a_smaller_ssim_range_weighs_faint_texture():
+    # a flat prediction of a faint texture (standard deviation 0.01): the standard SSIM hardly
+    # sees the loss of the texture, the loss at range 0.3 does
+    faint = 0.5 + 0.01 * torch.randn(4, 1, 32, 32, generator=torch.Generator().manual_seed(0))
+    flat = torch.full_like(faint, 0.5)
+    standard = LossWeights(l1=0.0, temporal=0.0)
+    faint_aware = LossWeights(l1=0.0, temporal=0.0, ssim_range=0.3)
+    loss = {w.ssim_range: float(reconstruction_loss(flat[None], faint[None], w)[0])
+            for w in (standard, faint_aware)}  # fmt: skip
+    assert loss[1.0] < 0.15 and loss[0.3] > 0.4
+    assert float(reconstruction_loss(faint[None], faint[None], faint_aware)[0]) < 1e-6
 
 
 def test_temporal_consistency_sees_only_flicker():

@@ -41,11 +41,15 @@ def _gaussian_window(size: int, sigma: float, dtype: torch.dtype) -> Tensor:
     return (g[:, None] * g[None, :])[None, None]
 
 
-def ssim(pred: Tensor, target: Tensor, window: int = 11, sigma: float = 1.5) -> Tensor:
-    """Mean SSIM (Wang et al. 2004, data range 1, Gaussian window ``window`` px, ``sigma`` px).
+def ssim(
+    pred: Tensor, target: Tensor, window: int = 11, sigma: float = 1.5, data_range: float = 1.0
+) -> Tensor:
+    """Mean SSIM (Wang et al. 2004, Gaussian window ``window`` px, ``sigma`` px).
 
     ``pred``, ``target``: ``(N, 1, H, W)``. Only the "valid" part (no padding) is averaged, as in
-    scikit-image's ``structural_similarity`` with ``gaussian_weights=True``.
+    scikit-image's ``structural_similarity`` with ``gaussian_weights=True``. ``data_range`` L sets
+    the stabilising constants ``(0.01 L)^2`` and ``(0.03 L)^2``: below a local standard deviation
+    of about 0.03 L the structure term stops seeing texture, so a smaller L weighs faint texture.
     """
     w = _gaussian_window(window, sigma, pred.dtype).to(pred.device)
     mu_x = F.conv2d(pred, w)
@@ -53,8 +57,9 @@ def ssim(pred: Tensor, target: Tensor, window: int = 11, sigma: float = 1.5) -> 
     xx = F.conv2d(pred * pred, w) - mu_x**2
     yy = F.conv2d(target * target, w) - mu_y**2
     xy = F.conv2d(pred * target, w) - mu_x * mu_y
-    num = (2 * mu_x * mu_y + _SSIM_C1) * (2 * xy + _SSIM_C2)
-    den = (mu_x**2 + mu_y**2 + _SSIM_C1) * (xx + yy + _SSIM_C2)
+    c1, c2 = _SSIM_C1 * data_range**2, _SSIM_C2 * data_range**2
+    num = (2 * mu_x * mu_y + c1) * (2 * xy + c2)
+    den = (mu_x**2 + mu_y**2 + c1) * (xx + yy + c2)
     return (num / den).mean()
 
 
@@ -143,6 +148,8 @@ class LossWeights:
     """Weight of the multi-scale gradient-matching term (:func:`gradient_matching`)."""
     lowfreq: float = 0.0
     """Weight of the block-mean L1 (:func:`lowfreq_l1`)."""
+    ssim_range: float = 1.0
+    """Data range of the SSIM term's constants (:func:`ssim`); 1 is the standard SSIM."""
 
 
 def reconstruction_loss(
@@ -156,11 +163,12 @@ def reconstruction_loss(
     if weights.affine_invariant:
         aligned = affine_align(flat_p, flat_t)
         l1 = (aligned - flat_t).abs().mean()
-        s = ssim(aligned, flat_t)
+        s = ssim(aligned, flat_t, data_range=weights.ssim_range)
         tc = temporal_consistency(aligned.reshape(pred.shape), target)
     else:
         aligned = flat_p
-        l1, s, tc = raw_l1, ssim(flat_p, flat_t), temporal_consistency(pred, target)
+        l1, s = raw_l1, ssim(flat_p, flat_t, data_range=weights.ssim_range)
+        tc = temporal_consistency(pred, target)
     total = weights.l1 * l1 + weights.ssim * (1 - s) + weights.temporal * tc
     grad = gradient_matching(aligned, flat_t) if weights.gradient else pred.new_zeros(())
     total = total + weights.gradient * grad

@@ -120,6 +120,11 @@ class TrainConfig:
     """Weight of an L1 between the 4 x 4 and 8 x 8 block means of prediction and target (the
     large-scale levels, e.g. a plain wall against the floor; on the aligned frames when
     loss_affine_invariant is on); 0 = off."""
+    loss_ssim_range: float = 1.0
+    """Data range L of the SSIM loss's constants (0.01 L)^2 and (0.03 L)^2, targets being in
+    [0, 1]: 1 is the standard SSIM, which stops seeing texture whose local standard deviation is
+    below about 0.03; a smaller L makes the loss weigh faint texture (validation's ssim_clipped
+    stays the standard SSIM)."""
     augment: bool = True
     """Random flips, quarter turns and polarity inversions."""
     augment_rotations: bool = True
@@ -159,6 +164,8 @@ class TrainConfig:
                              "(set train.reverse_playback to play sequences back and forth)")  # fmt: skip
         if self.crop_size > min(self.data.width, self.data.height):
             raise ValueError("train.crop_size exceeds the simulated camera size")
+        if not 0.0 < self.loss_ssim_range <= 1.0:
+            raise ValueError(f"train.loss_ssim_range must lie in (0, 1], not {self.loss_ssim_range}")
         if not 0.0 <= self.ema_decay < 1.0:
             raise ValueError(f"train.ema_decay must lie in [0, 1), not {self.ema_decay}")
 
@@ -179,6 +186,7 @@ class TrainConfig:
             self.loss_anchor,
             self.loss_gradient,
             self.loss_lowfreq,
+            self.loss_ssim_range,
         )
 
 
