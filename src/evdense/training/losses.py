@@ -20,6 +20,8 @@ weighs the large-scale levels (a plain wall against the floor beside it) that th
 the texture-dominated pixel L1 leave to chance. It is aimed at a network that renders fine texture
 with a high gain and the steps between large plain regions with a low one; a short fine-tune at
 weights 2 and 8 did not change that (the ablation table in docs/benchmarks.md).
+``LossWeights.ssim_range`` gives the SSIM term the constants of a smaller data range, so that it
+weighs texture too faint for the standard SSIM (on the real clips a trade, not a gain: same table).
 """
 
 from __future__ import annotations

@@ -165,7 +165,9 @@ class TrainConfig:
         if self.crop_size > min(self.data.width, self.data.height):
             raise ValueError("train.crop_size exceeds the simulated camera size")
         if not 0.0 < self.loss_ssim_range <= 1.0:
-            raise ValueError(f"train.loss_ssim_range must lie in (0, 1], not {self.loss_ssim_range}")
+            raise ValueError(
+                f"train.loss_ssim_range must lie in (0, 1], not {self.loss_ssim_range}"
+            )
         if not 0.0 <= self.ema_decay < 1.0:
             raise ValueError(f"train.ema_decay must lie in [0, 1), not {self.ema_decay}")
 
