@@ -16,8 +16,9 @@ pictures (every one that scikit-image and Matplotlib ship, but those kept for th
 dead leaves and 1/f noise (natural-image statistics), flat and gradient surfaces with a few shapes
 or none (the low-texture walls and floors where a recurrent network must hold its state for
 hundreds of windows), text in several fonts, gratings, and mosaics of all of these (textured dead
-leaves, :func:`_mosaic_texture`; drawn only when ``train.data.planar_textures`` asks). Time is warped by a random speed
-profile, with near pauses, so windows cover very different durations and noise shares.
+leaves, :func:`_mosaic_texture`; drawn only when ``train.data.planar_textures`` asks). Time is
+warped by a random speed profile, with near pauses, so windows cover very different durations and
+noise shares.
 
 Everything is drawn from one ``numpy.random.Generator``: a sequence is reproducible from its seed.
 Rendering is supersampled 2x and box-filtered (no aliasing flicker that a real lens would blur).
@@ -223,8 +224,8 @@ def _mosaic_texture(rng: np.random.Generator, size: int, weights: dict[str, floa
     """
     inner = {k: w for k, w in weights.items() if k != "mosaic" and w > 0}
     inner.setdefault("flat", 0.1)
-    fills = [random_texture(rng, size, inner) for _ in range(int(rng.integers(3, 7)))]
-    fills = [f - float(f.mean()) for f in fills]
+    fills = np.stack([random_texture(rng, size, inner) for _ in range(int(rng.integers(3, 7)))])
+    fills -= fills.mean((1, 2), keepdims=True)
     labels, _ = dead_leaves_labels(size, float(rng.uniform(4, 16)), float(rng.uniform(60, 300)),
                                    float(rng.uniform(2.0, 3.0)), rng)  # fmt: skip
     n = int(labels.max()) + 1
@@ -232,10 +233,8 @@ def _mosaic_texture(rng: np.random.Generator, size: int, weights: dict[str, floa
     level = rng.uniform(0.03, 1.0, n).astype(np.float32)
     gain = np.exp(rng.uniform(np.log(0.3), np.log(1.5), n)).astype(np.float32)
     lab = np.maximum(labels, 0)
-    tex = np.full((size, size), 0.5, np.float32)
-    for k, f in enumerate(fills):
-        sel = (which[lab] == k) & (labels >= 0)
-        tex[sel] = level[lab[sel]] + gain[lab[sel]] * f[sel]
+    fill = np.take_along_axis(fills, which[lab][None], 0)[0]  # each texel from its disk's fill
+    tex = np.where(labels >= 0, level[lab] + gain[lab] * fill, np.float32(0.5))
     return np.clip(tex, 0.01, 1).astype(np.float32)
 
 
