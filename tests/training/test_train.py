@@ -7,6 +7,7 @@ import json
 import numpy as np
 import pytest
 import torch
+import torch.nn.functional as F
 from skimage.metrics import structural_similarity
 
 from evdense.events.voxel import voxel_grid
@@ -23,8 +24,10 @@ from evdense.training.data import (
 from evdense.training.heldout import EvalConfig, evaluate_methods, frame_scores, read_heldout
 from evdense.training.losses import (
     LossWeights,
+    RandomFeatures,
     gradient_matching,
     lowfreq_l1,
+    random_feature_loss,
     reconstruction_loss,
     ssim,
     temporal_consistency,
@@ -167,6 +170,33 @@ def test_a_smaller_ssim_range_weighs_faint_texture():
             for w in (standard, faint_aware)}  # fmt: skip
     assert loss[1.0] < 0.15 and loss[0.3] > 0.4
     assert float(reconstruction_loss(faint[None], faint[None], faint_aware)[0]) < 1e-6
+
+
+def test_random_feature_loss_sees_structure_not_gain():
+    # a textured target; a blurred copy and an offset copy with the same pixel L1: the perceptual
+    # distance is zero for a gain about mid-grey and ranks the blur (lost structure) worst
+    gen = torch.Generator().manual_seed(1)
+    target = F.avg_pool2d(torch.rand(4, 1, 64, 64, generator=gen), 3, 1, padding=1)
+    target = (target - target.amin()) / (target.amax() - target.amin())
+    blurred = F.avg_pool2d(F.pad(target, (2, 2, 2, 2), mode="reflect"), 5, 1)
+    err = (blurred - target).abs().mean()
+    scaled = 0.5 + 1.7 * (target - 0.5)
+    d = {name: float(random_feature_loss(p, target))
+         for name, p in [("same", target), ("gain", scaled), ("offset", target + err),
+                         ("blur", blurred), ("flat", torch.full_like(target, 0.5))]}  # fmt: skip
+    assert d["same"] == pytest.approx(0.0, abs=1e-6) and d["gain"] < 1e-3
+    assert 0.05 < d["offset"] < 0.7 * d["blur"] < d["flat"]
+    # gradients reach the prediction only; the network is the same in every process
+    pred = blurred.clone().requires_grad_(True)
+    random_feature_loss(pred, target).backward()
+    assert pred.grad is not None and float(pred.grad.abs().sum()) > 0
+    a, b = RandomFeatures().state_dict(), RandomFeatures().state_dict()
+    assert all(torch.equal(a[k], b[k]) for k in a)
+    assert not any(p.requires_grad for p in RandomFeatures().parameters())
+    # the config weight reaches the loss
+    _, terms = reconstruction_loss(blurred[None], target[None], LossWeights(perceptual=2.0))
+    assert terms["perceptual"] == pytest.approx(d["blur"], rel=1e-5)
+    assert reconstruction_loss(blurred[None], target[None], LossWeights())[1]["perceptual"] == 0
 
 
 def test_temporal_consistency_sees_only_flicker():

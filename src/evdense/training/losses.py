@@ -22,11 +22,18 @@ with a high gain and the steps between large plain regions with a low one; a sho
 weights 2 and 8 did not change that (the ablation table in docs/benchmarks.md).
 ``LossWeights.ssim_range`` gives the SSIM term the constants of a smaller data range, so that it
 weighs texture too faint for the standard SSIM (on the real clips a trade, not a gain: same table).
+``LossWeights.perceptual`` adds a feature loss without pretrained weights (:func:`random_feature_loss`):
+LPIPS's distance between unit-normalised activations, taken on a fixed, randomly initialised
+VGG-shaped network at four scales instead of an ImageNet VGG, which we may not download ("Generic
+Perceptual Loss", Liu et al., CVPR 2021, found random networks to serve as perceptual losses;
+E2VID and FireNet trained with LPIPS). It compares the pattern of local structure at receptive
+fields from 5 to about 70 px, not its gain.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 
 import torch
 import torch.nn.functional as F
@@ -132,6 +139,78 @@ def lowfreq_l1(pred: Tensor, target: Tensor, blocks: tuple[int, ...] = (4, 8)) -
     return total / max(used, 1)
 
 
+class RandomFeatures(torch.nn.Module):
+    """A frozen VGG-shaped network with random weights: four stages of two 3 x 3 convolutions.
+
+    Each stage doubles the channels (up to ``channels[-1]``) and halves the resolution (2 x 2 max
+    pooling). Weights are drawn once from ``seed`` with He (Kaiming) scaling and zero biases, so
+    activations keep the input's scale from stage to stage and every run draws the same network:
+    nothing is downloaded or shipped. :meth:`forward` returns each stage's output.
+    """
+
+    def __init__(self, seed: int = 0, channels: tuple[int, ...] = (16, 32, 64, 64)) -> None:
+        super().__init__()
+        gen = torch.Generator().manual_seed(seed)
+        self.stages = torch.nn.ModuleList()
+        c_in = 1
+        for c in channels:
+            convs = [torch.nn.Conv2d(c_in, c, 3, padding=1), torch.nn.Conv2d(c, c, 3, padding=1)]
+            for conv in convs:
+                fan_in = conv.in_channels * 9
+                with torch.no_grad():
+                    conv.weight.copy_(
+                        torch.randn(conv.weight.shape, generator=gen) * (2.0 / fan_in) ** 0.5
+                    )
+                    conv.bias.zero_()
+            self.stages.append(
+                torch.nn.Sequential(convs[0], torch.nn.ReLU(), convs[1], torch.nn.ReLU())
+            )
+            c_in = c
+        self.requires_grad_(False)
+        self.eval()
+
+    def forward(self, x: Tensor) -> list[Tensor]:
+        feats = []
+        h = x - 0.5  # targets lie in [0, 1]: centre them so the ReLUs see both signs
+        for i, stage in enumerate(self.stages):
+            if i:
+                h = F.max_pool2d(h, 2)
+            h = stage(h)
+            feats.append(h)
+        return feats
+
+
+@lru_cache(maxsize=4)
+def _random_features(device: str, dtype: torch.dtype) -> RandomFeatures:
+    return RandomFeatures().to(device=device, dtype=dtype)
+
+
+def random_feature_loss(pred: Tensor, target: Tensor, eps: float = 0.05) -> Tensor:
+    """Mean over the stages of :class:`RandomFeatures` of the distance of their unit-normalised activations.
+
+    As LPIPS (Zhang et al. 2018) without its learned channel weights: at each pixel of each stage
+    the activation vector is divided by its length (softened by ``eps``, which keeps the gradient
+    bounded where a stage barely responds) and the squared differences are summed over channels
+    and averaged over pixels. It compares the pattern of local structure, not its gain: a frame
+    scaled about mid-grey (0.5) scores 0, a blurred or flattened one high. ``pred``, ``target``:
+    ``(N, 1, H, W)``; gradients flow to ``pred`` only. A stage whose resolution would fall below
+    2 px is skipped.
+    """
+    net = _random_features(str(pred.device), pred.dtype)
+    total = pred.new_zeros(())
+    used = 0
+    with torch.no_grad():
+        feats_t = net(target)
+    for fp, ft in zip(net(pred), feats_t, strict=True):
+        if min(fp.shape[-2:]) < 2:
+            break
+        up = fp * torch.rsqrt(fp.square().sum(1, keepdim=True) + eps**2)
+        ut = ft * torch.rsqrt(ft.square().sum(1, keepdim=True) + eps**2)
+        total = total + (up - ut).square().sum(1).mean()
+        used += 1
+    return total / max(used, 1)
+
+
 @dataclass
 class LossWeights:
     """Weights of the loss terms (config keys ``train.loss_*``)."""
@@ -152,6 +231,8 @@ class LossWeights:
     """Weight of the block-mean L1 (:func:`lowfreq_l1`)."""
     ssim_range: float = 1.0
     """Data range of the SSIM term's constants (:func:`ssim`); 1 is the standard SSIM."""
+    perceptual: float = 0.0
+    """Weight of the random-feature perceptual distance (:func:`random_feature_loss`)."""
 
 
 def reconstruction_loss(
@@ -176,6 +257,8 @@ def reconstruction_loss(
     total = total + weights.gradient * grad
     low = lowfreq_l1(aligned, flat_t) if weights.lowfreq else pred.new_zeros(())
     total = total + weights.lowfreq * low
+    feat = random_feature_loss(aligned, flat_t) if weights.perceptual else pred.new_zeros(())
+    total = total + weights.perceptual * feat
     if weights.anchor:
         total = total + weights.anchor * raw_l1
     return total, {
@@ -185,5 +268,6 @@ def reconstruction_loss(
         "raw_l1": float(raw_l1.detach()),
         "gradient": float(grad.detach()),
         "lowfreq": float(low.detach()),
+        "perceptual": float(feat.detach()),
         "loss": float(total.detach()),
     }

@@ -125,6 +125,11 @@ class TrainConfig:
     [0, 1]: 1 is the standard SSIM, which stops seeing texture whose local standard deviation is
     below about 0.03; a smaller L makes the loss weigh faint texture (validation's ssim_clipped
     stays the standard SSIM)."""
+    loss_perceptual: float = 0.0
+    """Weight of a perceptual loss without pretrained weights: LPIPS's distance between unit-
+    normalised activations, on a fixed, randomly initialised VGG-shaped network at four scales
+    (receptive fields of 5 to about 70 px; Liu et al. 2021 found random networks serve as
+    perceptual losses); on the aligned frames when loss_affine_invariant is on; 0 = off."""
     augment: bool = True
     """Random flips, quarter turns and polarity inversions."""
     augment_rotations: bool = True
@@ -189,6 +194,7 @@ class TrainConfig:
             self.loss_gradient,
             self.loss_lowfreq,
             self.loss_ssim_range,
+            self.loss_perceptual,
         )
 
 
