@@ -143,8 +143,8 @@ def lowfreq_l1(pred: Tensor, target: Tensor, blocks: tuple[int, ...] = (4, 8)) -
 class RandomFeatures(torch.nn.Module):
     """A frozen VGG-shaped network with random weights: four stages of two 3 x 3 convolutions.
 
-    Each stage doubles the channels (up to ``channels[-1]``) and halves the resolution (2 x 2 max
-    pooling). Weights are drawn once from ``seed`` with He (Kaiming) scaling and zero biases, so
+    Stage ``k`` has ``channels[k]`` channels; every stage after the first starts by halving the
+    resolution (2 x 2 max pooling). Weights are drawn once from ``seed`` with He (Kaiming) scaling and zero biases, so
     activations keep the input's scale from stage to stage and every run draws the same network:
     nothing is downloaded or shipped. :meth:`forward` returns each stage's output.
     """
@@ -187,7 +187,7 @@ def _random_features(device: str, dtype: torch.dtype) -> RandomFeatures:
 
 
 def random_feature_loss(pred: Tensor, target: Tensor, eps: float = 0.05) -> Tensor:
-    """Mean over the stages of :class:`RandomFeatures` of the distance of their unit-normalised activations.
+    """Perceptual distance: mean over the stages of :class:`RandomFeatures`, as LPIPS computes it.
 
     As LPIPS (Zhang et al. 2018) without its learned channel weights: at each pixel of each stage
     the activation vector is divided by its length (softened by ``eps``, which keeps the gradient
