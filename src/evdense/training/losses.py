@@ -144,9 +144,10 @@ class RandomFeatures(torch.nn.Module):
     """A frozen VGG-shaped network with random weights: four stages of two 3 x 3 convolutions.
 
     Stage ``k`` has ``channels[k]`` channels; every stage after the first starts by halving the
-    resolution (2 x 2 max pooling). Weights are drawn once from ``seed`` with He (Kaiming) scaling and zero biases, so
-    activations keep the input's scale from stage to stage and every run draws the same network:
-    nothing is downloaded or shipped. :meth:`forward` returns each stage's output.
+    resolution (2 x 2 max pooling). Weights are drawn once from ``seed`` with He (Kaiming) scaling
+    and zero biases, so activations keep the input's scale from stage to stage and every run draws
+    the same network: nothing is downloaded or shipped. :meth:`forward` returns each stage's
+    output.
     """
 
     def __init__(self, seed: int = 0, channels: tuple[int, ...] = (16, 32, 64, 64)) -> None:
@@ -157,12 +158,8 @@ class RandomFeatures(torch.nn.Module):
         for c in channels:
             convs = [torch.nn.Conv2d(c_in, c, 3, padding=1), torch.nn.Conv2d(c, c, 3, padding=1)]
             for conv in convs:
-                fan_in = conv.in_channels * 9
-                with torch.no_grad():
-                    conv.weight.copy_(
-                        torch.randn(conv.weight.shape, generator=gen) * (2.0 / fan_in) ** 0.5
-                    )
-                    conv.bias.zero_()
+                torch.nn.init.kaiming_normal_(conv.weight, nonlinearity="relu", generator=gen)
+                torch.nn.init.zeros_(conv.bias)
             self.stages.append(
                 torch.nn.Sequential(convs[0], torch.nn.ReLU(), convs[1], torch.nn.ReLU())
             )
