@@ -26,7 +26,7 @@ import open3d as o3d
 from bench_refine import scored
 
 from evdense.evaluate.config import EvalConfig
-from evdense.evaluate.geometry import gt_reference_samples
+from evdense.evaluate.geometry_metrics import gt_reference_samples
 from evdense.formats.cloud import read_cloud
 from evdense.mesh.cleanup import BOUNDARY_MODES, CleanupConfig, clean_mesh
 from evdense.mesh.views import read_views

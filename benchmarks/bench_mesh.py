@@ -34,7 +34,7 @@ import numpy as np
 import open3d as o3d
 
 from evdense.camera import davis346
-from evdense.evaluate.geometry import evaluate_geometry
+from evdense.evaluate.geometry_metrics import evaluate_geometry
 from evdense.evaluate.rendering import render_textured
 from evdense.formats.cloud import read_cloud
 from evdense.log import setup_logging

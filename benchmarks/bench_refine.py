@@ -27,7 +27,7 @@ import yaml
 
 from evdense.evaluate.align import apply_h, apply_sim3
 from evdense.evaluate.config import EvalConfig
-from evdense.evaluate.geometry import evaluate_geometry, gt_reference_samples
+from evdense.evaluate.geometry_metrics import evaluate_geometry, gt_reference_samples
 from evdense.mesh.geometry import edges_of
 from evdense.mesh.views import make_mesh, read_mesh, read_views
 from evdense.refine.photometric import RefineConfig, refine_vertices

@@ -9,7 +9,7 @@ from scipy.spatial.transform import Rotation
 
 from evdense.camera import Camera
 from evdense.evaluate.align import refine_with_icp, truncated_cost
-from evdense.evaluate.geometry import (
+from evdense.evaluate.geometry_metrics import (
     evaluate_geometry,
     observed_surface_samples,
     sample_surface,

@@ -9,7 +9,7 @@ import open3d as o3d
 import pytest
 
 from evdense.camera import Camera
-from evdense.evaluate.geometry import sample_surface, surface_distance
+from evdense.evaluate.geometry_metrics import sample_surface, surface_distance
 from evdense.evaluate.rendering import depth_map
 from evdense.formats.frames import write_timestamps
 from evdense.io.gt_depth import fuse_depth_maps, read_depth_maps

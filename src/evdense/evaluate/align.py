@@ -193,7 +193,7 @@ def refine_with_icp(
     """
     import open3d as o3d
 
-    from evdense.evaluate.geometry import sample_surface
+    from evdense.evaluate.geometry_metrics import sample_surface
 
     if 0 < max_points < len(points):
         rng = np.random.default_rng(seed)

@@ -289,7 +289,7 @@ def _reconstructions(dataset, out_dir, sources, loaded, gt, gt_mesh, camera, con
 def distance_view(seen, other, camera: Camera, T_wc: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Render mesh ``seen`` and colour it by the distance of each visible point to mesh ``other``:
     distances ``(H, W)`` in metres (NaN where ``seen`` is not hit) and a Lambert shade ``(H, W)``."""
-    from evdense.evaluate.geometry import surface_distance
+    from evdense.evaluate.geometry_metrics import surface_distance
     from evdense.mesh.geometry import camera_rays, make_scene, raycast_view
 
     hits = raycast_view(
@@ -310,7 +310,7 @@ def _errors(name, out_dir, files, L, gt, gt_mesh, camera, conf) -> list[Path]:
     """The reconstruction coloured by its distance to GT, and GT by its distance to it."""
     import open3d as o3d
 
-    from evdense.evaluate.geometry import bbox_diagonal
+    from evdense.evaluate.geometry_metrics import bbox_diagonal
 
     out_png = out_dir / f"errors_{name}.png"
     mesh_path = files.refined if files.refined and files.refined.is_file() else None

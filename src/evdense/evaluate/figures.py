@@ -187,9 +187,9 @@ def events_spacetime_figure(
     max_events: int = 20_000,
 ) -> list[Path]:
     """Fig. 3 of the seed paper: the events of ``duration_ms`` in the middle of the recording in
-    (x, t, y), coloured by polarity (:func:`evdense.events.frames.plot_space_time`)."""
+    (x, t, y), coloured by polarity (:func:`evdense.events.pictures.plot_space_time`)."""
     from evdense.events.container import EventFile
-    from evdense.events.frames import plot_space_time
+    from evdense.events.pictures import plot_space_time
 
     with EventFile(events_path) as ef:
         mid = 0.5 * (ef.t_start_us + ef.t_end_us)
@@ -207,7 +207,7 @@ def event_frames_over_time(
 ) -> list[Path]:  # fmt: skip
     """Fig. 4: event frames (polarity-coloured) of ``num`` windows spread over the recording."""
     from evdense.events.container import EventFile
-    from evdense.events.frames import event_frame
+    from evdense.events.pictures import event_frame
 
     with EventFile(events_path) as ef:
         n, H, W = ef.num_events, ef.height, ef.width

@@ -4,7 +4,7 @@ Monocular SfM recovers the scene up to a similarity, so everything is first alig
 Umeyama Sim(3) on camera centres matched by timestamp, then a scaled ICP of the densest cloud onto
 the GT surface, accepted only when it brings the cloud closer (a truncated squared distance
 falls). The aligned products (sparse cloud, dense cloud, meshes) are cropped to the GT volume and
-scored with :mod:`evdense.evaluate.geometry`; the trajectory with
+scored with :mod:`evdense.evaluate.geometry_metrics`; the trajectory with
 :mod:`evdense.evaluate.trajectory_errors`; the frames with :mod:`evdense.evaluate.images` against GT
 intensity rendered at their timestamps.
 """
@@ -27,7 +27,7 @@ from evdense.evaluate.align import (
     refine_with_icp,
 )
 from evdense.evaluate.config import EvalConfig
-from evdense.evaluate.geometry import (
+from evdense.evaluate.geometry_metrics import (
     bbox_diagonal,
     evaluate_geometry,
     gt_reference_samples,

@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 
 from evdense.events.container import EventFile
-from evdense.events.frames import NEGATIVE_RGB, POSITIVE_RGB, plot_space_time, save_event_frame
+from evdense.events.pictures import NEGATIVE_RGB, POSITIVE_RGB, plot_space_time, save_event_frame
 from evdense.events.windows import WindowConfig, compute_windows, window_spec
 from evdense.log import get_logger
 

@@ -270,7 +270,7 @@ def gt_reference_samples(
 ) -> tuple[np.ndarray | None, dict[str, Any]]:
     """The GT points completeness is measured on, and a description of them for the metrics file.
 
-    ``observed``: :func:`~evdense.evaluate.geometry.observed_surface_samples` from
+    ``observed``: :func:`~evdense.evaluate.geometry_metrics.observed_surface_samples` from
     ``visibility_views`` GT cameras evenly spaced in time over ``gt_dir/trajectory.txt``;
     ``full``: None (the whole surface, sampled by :func:`evaluate_geometry`).
     """

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from evdense.events.container import Events, write_events
-from evdense.events.frames import (
+from evdense.events.pictures import (
     NEGATIVE_RGB,
     POSITIVE_RGB,
     event_frame,
