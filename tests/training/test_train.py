@@ -503,6 +503,55 @@ def test_config_rejects_unknown_keys():
         TrainConfig.from_dict({"data": {"planar_textures": {"flat": 0.0}}})
 
 
+def test_mix_entries_inherit_the_main_recipe_and_keep_its_camera():
+    conf = TrainConfig.from_dict({**TINY, "mix": [{"contrast_range": [0.12, 0.27]},
+                                                  {"num_train_sequences": 2, "hdr_fraction": 0.0}]})  # fmt: skip
+    (a, na), (b, nb) = conf.mix_recipes()
+    assert (na, nb) == (4, 2)
+    assert a.contrast_range == [0.12, 0.27] and a.width == 64 and a.texture_size == 128
+    assert b.hdr_fraction == 0.0 and b.contrast_range == conf.data.contrast_range
+    with pytest.raises(ValueError, match=r"train\.mix\[0\]: width must equal"):
+        TrainConfig.from_dict({**TINY, "mix": [{"width": 96}]})
+    with pytest.raises(ValueError, match=r"train\.mix\[0\]: unknown keys \['bogus'\]"):
+        TrainConfig.from_dict({**TINY, "mix": [{"bogus": 1}]})
+    with pytest.raises(ValueError, match=r"train\.mix\[0\]\.num_train_sequences must be >= 1"):
+        TrainConfig.from_dict({**TINY, "mix": [{"num_train_sequences": 0}]})
+
+
+@pytest.mark.slow
+def test_a_mixed_run_simulates_each_recipe_once_and_records_them(tmp_path, caplog):
+    import logging
+
+    from evdense.training.data import read_config
+    from evdense.training.stage import run_training
+
+    mix = {"num_train_sequences": 3, "planar_fraction": 1.0, "planar_textures": {"flat": 1.0}}
+    base = {**TINY, "num_train_sequences": 2, "num_val_sequences": 1, "num_heldout_sequences": 0,
+            "val_every": 2, "checkpoint_every": 2, "mix": [mix]}  # fmt: skip
+    run = tmp_path / "run"
+    with caplog.at_level(logging.INFO, logger="evdense"):
+        run_training(TrainConfig.from_dict({**base, "max_steps": 2}), run, evaluate=False)
+    assert any("training sequences: 2 + 3" in r.getMessage() for r in caplog.records)
+    main, extra = run / "trainset_s0.h5", run / "trainset_s0_mix0.h5"
+    assert read_config(extra).planar_textures == {"flat": 1.0}
+    assert read_config(extra).width == 64 and read_config(main).planar_textures != {"flat": 1.0}
+    assert len(load_split(extra, "train")[0]) == 3 and len(load_split(main, "train")[0]) == 2
+    prov = json.loads((run / "evfirenet.json").read_text())["provenance"]
+    assert prov["mix"] == [{"data_file": str(extra), "data_recipe": prov["mix"][0]["data_recipe"]}]
+    assert prov["mix"][0]["data_recipe"]["planar_textures"] == {"flat": 1.0}
+    made = extra.stat().st_mtime_ns
+    caplog.clear()
+    edited = {**mix, "planar_textures": {"flat": 0.5, "noise": 0.5}}
+    with caplog.at_level(logging.INFO, logger="evdense"):
+        run_training(TrainConfig.from_dict({**base, "max_steps": 4, "mix": [edited]}), run,
+                     evaluate=False)  # fmt: skip
+    assert extra.stat().st_mtime_ns == made  # reused, not simulated again, and said so
+    warned = [r.getMessage() for r in caplog.records if r.levelno == logging.WARNING]
+    assert warned == [f"{extra}: reused, made with other planar_textures than the config "
+                      "(delete it to simulate it again)"]  # fmt: skip
+    assert json.loads((run / "history.jsonl").read_text().splitlines()[-1])["step"] == 4
+
+
 def test_planar_texture_weights_reach_the_generator():
     def edges(kinds):
         data = {**TINY["data"], "planar_fraction": 1.0, "planar_textures": kinds}

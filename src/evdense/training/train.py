@@ -26,6 +26,7 @@ import copy
 import json
 import math
 import time
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -155,6 +156,14 @@ class TrainConfig:
     initialisation: a fine-tune, with its own warm-up and cosine schedule ("" = random start)."""
     data: TrainDataConfig = field(default_factory=TrainDataConfig)
     """Recipe of the simulated training set (src/evdense/training/data.py)."""
+    mix: list[dict[str, Any]] = field(default_factory=list)
+    """Further recipes whose training sequences join those of ``data`` (validation stays on
+    ``data``'s split): each entry holds ``num_train_sequences`` (default: the run's) and any
+    ``train.data`` keys that differ from ``data`` (a key absent keeps ``data``'s value; the
+    camera and the bins cannot differ). Entry ``i`` is simulated with the run's seed into
+    ``trainset_s<seed>_mix<i>.h5`` beside the main set; each crop of a batch comes from a sequence
+    drawn uniformly over all of them, so the recipes weigh as their sequence counts ([] = one
+    recipe)."""
 
     @classmethod
     def from_dict(cls, d: dict[str, Any] | None) -> TrainConfig:
@@ -175,6 +184,26 @@ class TrainConfig:
             )
         if not 0.0 <= self.ema_decay < 1.0:
             raise ValueError(f"train.ema_decay must lie in [0, 1), not {self.ema_decay}")
+        self.mix_recipes()
+
+    def mix_recipes(self) -> list[tuple[TrainDataConfig, int]]:
+        """Each ``mix`` entry as its full recipe and its number of training sequences."""
+        out = []
+        for i, entry in enumerate(self.mix):
+            where = f"train.mix[{i}]"
+            if not isinstance(entry, dict):
+                raise ValueError(f"{where}: a mapping of train.data keys, not {entry!r}")
+            entry = dict(entry)
+            n = int(entry.pop("num_train_sequences", self.num_train_sequences))
+            if n < 1:
+                raise ValueError(f"{where}.num_train_sequences must be >= 1, not {n}")
+            same = ("width", "height", "bins")
+            changed = [k for k in same if k in entry and entry[k] != getattr(self.data, k)]
+            if changed:
+                raise ValueError(f"{where}: {', '.join(changed)} must equal train.data's")
+            recipe = section_from_dict(TrainDataConfig, {**asdict(self.data), **entry}, where)
+            out.append((recipe, n))
+        return out
 
     def splits(self) -> dict[str, int]:
         """Split name -> number of sequences to simulate."""
@@ -489,11 +518,13 @@ def train_model(
     weights_path: str | Path,
     resume: bool = True,
     max_steps: int | None = None,
+    mix_paths: Sequence[str | Path] = (),
 ) -> TrainResult:
     """Train FireNet on the simulated set ``data_path`` (see :func:`~evdense.training.data.generate_dataset`).
 
-    Resumes from the latest checkpoint in ``out_dir/checkpoints`` when ``resume``; ``max_steps``
-    stops this session early (the schedule still follows ``conf.max_steps``), for tests and for
+    ``mix_paths``: further sets (``train.mix``) whose training sequences join those of
+    ``data_path``; validation uses ``data_path``'s. Resumes from the latest checkpoint in
+    ``out_dir/checkpoints`` when ``resume``; ``max_steps`` stops this session early (the schedule still follows ``conf.max_steps``), for tests and for
     splitting a run. Best-validation weights go to ``weights_path`` (``.pt`` + ``.json``).
     """
     out_dir, weights_path = Path(out_dir), Path(weights_path)
@@ -501,12 +532,20 @@ def train_model(
     torch.set_num_threads(conf.threads)
     dev = pick_device(conf.device)
     data_conf = read_config(data_path)
-    if (data_conf.bins, data_conf.width, data_conf.height) != (
-        conf.data.bins, conf.data.width, conf.data.height,
-    ):  # fmt: skip
-        raise ValueError(f"{data_path}: made with another camera or bin count than train.data")
+    mix_confs = [read_config(m) for m in mix_paths]
+    for path, dc in [(data_path, data_conf), *zip(mix_paths, mix_confs, strict=True)]:
+        if (dc.bins, dc.width, dc.height) != (conf.data.bins, conf.data.width, conf.data.height):
+            raise ValueError(f"{path}: made with another camera or bin count than train.data")
     weights = conf.loss_weights()
-    train = SequenceSampler(*load_split(data_path, "train"), conf)
+    t_vox, t_tgt = load_split(data_path, "train")
+    if mix_paths:
+        parts = [(t_vox, t_tgt), *(load_split(m, "train") for m in mix_paths)]
+        t_vox = np.concatenate([v for v, _ in parts])
+        t_tgt = np.concatenate([t for _, t in parts])
+        log.info("training sequences: %s", " + ".join(str(len(v)) for v, _ in parts))
+        del parts
+    train = SequenceSampler(t_vox, t_tgt, conf)
+    del t_vox, t_tgt
     v_vox, v_tgt = load_split(data_path, "val")
     v_vox = normalize_windows(v_vox, conf.voxel_clip).to(dev)
     v_tgt = torch.from_numpy(v_tgt).to(dev)
@@ -543,11 +582,16 @@ def train_model(
     elif history.is_file():
         history.unlink()
 
+    mix_record = [
+        {"data_file": str(m), "data_recipe": asdict(dc)}
+        for m, dc in zip(mix_paths, mix_confs, strict=True)
+    ]
     provenance_base = {
         "trained_by": "evdense.training.train.train_model",
         "train_config": asdict(conf),
         "data_file": str(data_path),
         "data_recipe": asdict(data_conf),
+        **({"mix": mix_record} if mix_record else {}),
         "seed": conf.seed,
         "device": describe_device(dev),
         "target": "log radiance at the window end, per-sequence robust range "
