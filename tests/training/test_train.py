@@ -506,16 +506,23 @@ def test_config_rejects_unknown_keys():
 def test_mix_entries_inherit_the_main_recipe_and_keep_its_camera():
     conf = TrainConfig.from_dict({**TINY, "mix": [{"contrast_range": [0.12, 0.27]},
                                                   {"num_train_sequences": 2, "hdr_fraction": 0.0}]})  # fmt: skip
-    (a, na), (b, nb) = conf.mix_recipes()
-    assert (na, nb) == (4, 2)
-    assert a.contrast_range == [0.12, 0.27] and a.width == 64 and a.texture_size == 128
-    assert b.hdr_fraction == 0.0 and b.contrast_range == conf.data.contrast_range
-    with pytest.raises(ValueError, match=r"train\.mix\[0\]: width must equal"):
-        TrainConfig.from_dict({**TINY, "mix": [{"width": 96}]})
-    with pytest.raises(ValueError, match=r"train\.mix\[0\]: unknown keys \['bogus'\]"):
-        TrainConfig.from_dict({**TINY, "mix": [{"bogus": 1}]})
-    with pytest.raises(ValueError, match=r"train\.mix\[0\]\.num_train_sequences must be >= 1"):
-        TrainConfig.from_dict({**TINY, "mix": [{"num_train_sequences": 0}]})
+    a, b = conf.mix_recipes()
+    assert (a.num_train_sequences, b.num_train_sequences) == (4, 2)
+    assert (a.seed, b.seed) == (1000, 2000)  # other scenes and motions than the main set's
+    assert a.recipe.contrast_range == [0.12, 0.27] and a.recipe.width == 64
+    assert a.recipe.texture_size == 128 and b.recipe.hdr_fraction == 0.0
+    assert b.recipe.contrast_range == conf.data.contrast_range
+    assert TrainConfig.from_dict({**TINY, "mix": [{"seed": 0}]}).mix_recipes()[0].seed == 0
+    for entry, error in [
+        ({"width": 96}, r"train\.mix\[0\]: width must equal"),
+        ({"windows_per_sequence": 12}, r"train\.mix\[0\]: windows_per_sequence must equal"),
+        ({"bogus": 1}, r"train\.mix\[0\]: unknown keys \['bogus'\]"),
+        ({"planar_textures": {"leaves": 1.0}}, r"train\.mix\[0\]\.planar_textures: unknown kinds"),
+        ({"num_train_sequences": 0}, r"train\.mix\[0\]\.num_train_sequences must be an integer >= 1"),
+        ({"num_train_sequences": 2.5}, r"train\.mix\[0\]\.num_train_sequences must be an integer"),
+    ]:  # fmt: skip
+        with pytest.raises(ValueError, match=error):
+            TrainConfig.from_dict({**TINY, "mix": [entry]})
 
 
 @pytest.mark.slow
@@ -537,7 +544,9 @@ def test_a_mixed_run_simulates_each_recipe_once_and_records_them(tmp_path, caplo
     assert read_config(extra).width == 64 and read_config(main).planar_textures != {"flat": 1.0}
     assert len(load_split(extra, "train")[0]) == 3 and len(load_split(main, "train")[0]) == 2
     prov = json.loads((run / "evfirenet.json").read_text())["provenance"]
-    assert prov["mix"] == [{"data_file": str(extra), "data_recipe": prov["mix"][0]["data_recipe"]}]
+    assert prov["mix"] == [
+        {"data_file": str(extra), "seed": 1000, "data_recipe": prov["mix"][0]["data_recipe"]}
+    ]
     assert prov["mix"][0]["data_recipe"]["planar_textures"] == {"flat": 1.0}
     made = extra.stat().st_mtime_ns
     caplog.clear()

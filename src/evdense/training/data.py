@@ -671,6 +671,20 @@ def read_config(path: str | Path) -> TrainDataConfig:
     )
 
 
+def read_seed(path: str | Path) -> int:
+    """The seed a cached set was simulated with."""
+    with h5py.File(path, "r") as f:
+        _check_format(f, path)
+        return int(f.attrs["seed"])
+
+
+def read_splits(path: str | Path) -> dict[str, int]:
+    """Split name -> number of sequences a cached set was made with."""
+    with h5py.File(path, "r") as f:
+        _check_format(f, path)
+        return {k: int(v) for k, v in json.loads(f.attrs["splits"]).items()}
+
+
 def _check_format(f: h5py.File, path: str | Path) -> None:
     if f.attrs.get("format") != TRAINSET_FORMAT:
         raise ValueError(f"{path}: not an evdense training set (format {f.attrs.get('format')!r})")

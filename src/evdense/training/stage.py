@@ -50,10 +50,10 @@ def run_training(
     if seconds is not None:
         extra["data_seconds"] = seconds
     mix_paths = []
-    for i, (recipe, count) in enumerate(conf.mix_recipes()):
+    for i, mix in enumerate(conf.mix_recipes()):
         path = run_dir / f"trainset_s{conf.seed}_mix{i}.h5"
-        splits = {"train": count, "val": 0, "heldout": 0}
-        seconds = _simulate_or_reuse(path, recipe, splits, conf.seed, workers)
+        splits = {"train": mix.num_train_sequences, "val": 0, "heldout": 0}
+        seconds = _simulate_or_reuse(path, mix.recipe, splits, mix.seed, workers)
         if seconds is not None:
             extra[f"data_seconds_mix{i}"] = seconds
         mix_paths.append(path)
@@ -74,14 +74,19 @@ def _simulate_or_reuse(
 ) -> float | None:
     """Simulate the set ``path`` unless it exists; the seconds spent, or None when reused.
 
-    A reused set whose recipe differs from ``recipe`` is kept (it may be a copy made on purpose)
-    with a warning that names the keys that differ.
+    A reused set made with another recipe, seed or number of sequences (of the splits asked for)
+    is kept, since it may be a copy made on purpose, with a warning that names what differs.
     """
-    from evdense.training.data import generate_dataset, read_config
+    from evdense.training.data import generate_dataset, read_config, read_seed, read_splits
 
     if path.is_file():
-        had, want = asdict(read_config(path)), asdict(recipe)
-        differ = sorted(k for k in want if json.dumps(had.get(k)) != json.dumps(want[k]))
+        had, want = _plain(asdict(read_config(path))), _plain(asdict(recipe))
+        differ = sorted(k for k in want if had.get(k) != want[k])
+        if read_seed(path) != seed:
+            differ.append(f"seed ({read_seed(path)}, not {seed})")
+        made = read_splits(path)
+        differ += [f"{k} sequences ({made.get(k, 0)}, not {n})"
+                   for k, n in splits.items() if n and made.get(k, 0) != n]  # fmt: skip
         if differ:
             log.warning("%s: reused, made with other %s than the config (delete it to simulate "
                         "it again)", path, ", ".join(differ))  # fmt: skip
@@ -89,3 +94,8 @@ def _simulate_or_reuse(
     t0 = time.monotonic()
     generate_dataset(path, recipe, splits, seed=seed, workers=workers)
     return time.monotonic() - t0
+
+
+def _plain(x: Any) -> Any:
+    """``x`` as JSON would give it back: tuples as lists (dicts compare without their order)."""
+    return json.loads(json.dumps(x))

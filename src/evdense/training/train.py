@@ -40,12 +40,28 @@ from evdense.log import get_logger
 from evdense.recon.checkpoints import infer_architecture, load_checkpoint, save_checkpoint
 from evdense.recon.inference import pick_device
 from evdense.recon.networks import ReconstructionNet, build_network, detach_states
-from evdense.training.data import TrainDataConfig, load_split, read_config
+from evdense.training.data import TrainDataConfig, load_split, read_config, read_seed
 from evdense.training.losses import LossWeights, reconstruction_loss, ssim
 
 log = get_logger("training")
 
 CHECKPOINT_FORMAT = "evdense-train-state"
+
+
+MIX_SEED_STRIDE = 1000
+"""Entry ``i`` of ``train.mix`` is simulated with the run's seed + this x (i + 1) by default."""
+
+
+@dataclass
+class MixRecipe:
+    """One ``train.mix`` entry, resolved against ``train.data``."""
+
+    recipe: TrainDataConfig
+    """The whole data recipe of the entry."""
+    num_train_sequences: int
+    """Training sequences simulated for it."""
+    seed: int
+    """Seed of its simulation."""
 
 
 @dataclass
@@ -160,8 +176,10 @@ class TrainConfig:
     """Further recipes whose training sequences join those of ``data`` (validation stays on
     ``data``'s split): each entry holds ``num_train_sequences`` (default: the run's) and any
     ``train.data`` keys that differ from ``data`` (a key absent keeps ``data``'s value; the
-    camera and the bins cannot differ). Entry ``i`` is simulated with the run's seed into
-    ``trainset_s<seed>_mix<i>.h5`` beside the main set; each crop of a batch comes from a sequence
+    camera, the bins and the windows per sequence cannot differ), and optionally ``seed``
+    (default: the run's seed + 1000 x (i + 1), so that entry ``i`` draws other scenes and motions
+    than the main set). Entry ``i`` is simulated into ``trainset_s<seed>_mix<i>.h5`` (the
+    run's seed in the name) beside the main set; each crop of a batch comes from a sequence
     drawn uniformly over all of them, so the recipes weigh as their sequence counts ([] = one
     recipe)."""
 
@@ -186,23 +204,28 @@ class TrainConfig:
             raise ValueError(f"train.ema_decay must lie in [0, 1), not {self.ema_decay}")
         self.mix_recipes()
 
-    def mix_recipes(self) -> list[tuple[TrainDataConfig, int]]:
-        """Each ``mix`` entry as its full recipe and its number of training sequences."""
+    def mix_recipes(self) -> list[MixRecipe]:
+        """Each ``mix`` entry as its full recipe, number of training sequences and seed."""
         out = []
         for i, entry in enumerate(self.mix):
             where = f"train.mix[{i}]"
             if not isinstance(entry, dict):
                 raise ValueError(f"{where}: a mapping of train.data keys, not {entry!r}")
             entry = dict(entry)
-            n = int(entry.pop("num_train_sequences", self.num_train_sequences))
-            if n < 1:
-                raise ValueError(f"{where}.num_train_sequences must be >= 1, not {n}")
-            same = ("width", "height", "bins")
+            n = entry.pop("num_train_sequences", self.num_train_sequences)
+            seed = entry.pop("seed", self.seed + MIX_SEED_STRIDE * (i + 1))
+            for key, v, low in (("num_train_sequences", n, 1), ("seed", seed, 0)):
+                if isinstance(v, bool) or not float(v).is_integer() or v < low:
+                    raise ValueError(f"{where}.{key} must be an integer >= {low}, not {v!r}")
+            same = ("width", "height", "bins", "windows_per_sequence")
             changed = [k for k in same if k in entry and entry[k] != getattr(self.data, k)]
             if changed:
                 raise ValueError(f"{where}: {', '.join(changed)} must equal train.data's")
-            recipe = section_from_dict(TrainDataConfig, {**asdict(self.data), **entry}, where)
-            out.append((recipe, n))
+            try:
+                recipe = section_from_dict(TrainDataConfig, {**asdict(self.data), **entry}, where)
+            except ValueError as e:  # the recipe's own checks name train.data
+                raise ValueError(str(e).replace("train.data", where)) from None
+            out.append(MixRecipe(recipe, int(n), int(seed)))
         return out
 
     def splits(self) -> dict[str, int]:
@@ -533,9 +556,11 @@ def train_model(
     dev = pick_device(conf.device)
     data_conf = read_config(data_path)
     mix_confs = [read_config(m) for m in mix_paths]
+    shape = ("bins", "width", "height", "windows_per_sequence")
     for path, dc in [(data_path, data_conf), *zip(mix_paths, mix_confs, strict=True)]:
-        if (dc.bins, dc.width, dc.height) != (conf.data.bins, conf.data.width, conf.data.height):
-            raise ValueError(f"{path}: made with another camera or bin count than train.data")
+        if [getattr(dc, k) for k in shape] != [getattr(conf.data, k) for k in shape]:
+            raise ValueError(f"{path}: made with another camera, bin count or windows per "
+                             "sequence than train.data")  # fmt: skip
     weights = conf.loss_weights()
     t_vox, t_tgt = load_split(data_path, "train")
     if mix_paths:
@@ -583,7 +608,7 @@ def train_model(
         history.unlink()
 
     mix_record = [
-        {"data_file": str(m), "data_recipe": asdict(dc)}
+        {"data_file": str(m), "seed": read_seed(m), "data_recipe": asdict(dc)}
         for m, dc in zip(mix_paths, mix_confs, strict=True)
     ]
     provenance_base = {
