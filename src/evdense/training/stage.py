@@ -82,8 +82,9 @@ def _simulate_or_reuse(
     if path.is_file():
         had, want = _plain(asdict(read_config(path))), _plain(asdict(recipe))
         differ = sorted(k for k in want if had.get(k) != want[k])
-        if read_seed(path) != seed:
-            differ.append(f"seed ({read_seed(path)}, not {seed})")
+        had_seed = read_seed(path)
+        if had_seed != seed:
+            differ.append(f"seed ({had_seed}, not {seed})")
         made = read_splits(path)
         differ += [f"{k} sequences ({made.get(k, 0)}, not {n})"
                    for k, n in splits.items() if n and made.get(k, 0) != n]  # fmt: skip

@@ -48,6 +48,9 @@ log = get_logger("training")
 CHECKPOINT_FORMAT = "evdense-train-state"
 
 
+SHAPE_KEYS = ("width", "height", "bins", "windows_per_sequence")
+"""``train.data`` keys every set of one run shares (their arrays are stacked into one)."""
+
 MIX_SEED_STRIDE = 1000
 """Entry ``i`` of ``train.mix`` is simulated with the run's seed + this x (i + 1) by default."""
 
@@ -217,8 +220,7 @@ class TrainConfig:
             for key, v, low in (("num_train_sequences", n, 1), ("seed", seed, 0)):
                 if isinstance(v, bool) or not float(v).is_integer() or v < low:
                     raise ValueError(f"{where}.{key} must be an integer >= {low}, not {v!r}")
-            same = ("width", "height", "bins", "windows_per_sequence")
-            changed = [k for k in same if k in entry and entry[k] != getattr(self.data, k)]
+            changed = [k for k in SHAPE_KEYS if k in entry and entry[k] != getattr(self.data, k)]
             if changed:
                 raise ValueError(f"{where}: {', '.join(changed)} must equal train.data's")
             try:
@@ -547,8 +549,8 @@ def train_model(
 
     ``mix_paths``: further sets (``train.mix``) whose training sequences join those of
     ``data_path``; validation uses ``data_path``'s. Resumes from the latest checkpoint in
-    ``out_dir/checkpoints`` when ``resume``; ``max_steps`` stops this session early (the schedule still follows ``conf.max_steps``), for tests and for
-    splitting a run. Best-validation weights go to ``weights_path`` (``.pt`` + ``.json``).
+    ``out_dir/checkpoints`` when ``resume``; ``max_steps`` stops this session early (the
+    schedule still follows ``conf.max_steps``), for tests and for splitting a run. Best-validation weights go to ``weights_path`` (``.pt`` + ``.json``).
     """
     out_dir, weights_path = Path(out_dir), Path(weights_path)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -556,9 +558,8 @@ def train_model(
     dev = pick_device(conf.device)
     data_conf = read_config(data_path)
     mix_confs = [read_config(m) for m in mix_paths]
-    shape = ("bins", "width", "height", "windows_per_sequence")
     for path, dc in [(data_path, data_conf), *zip(mix_paths, mix_confs, strict=True)]:
-        if [getattr(dc, k) for k in shape] != [getattr(conf.data, k) for k in shape]:
+        if any(getattr(dc, k) != getattr(conf.data, k) for k in SHAPE_KEYS):
             raise ValueError(f"{path}: made with another camera, bin count or windows per "
                              "sequence than train.data")  # fmt: skip
     weights = conf.loss_weights()
