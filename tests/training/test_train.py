@@ -571,6 +571,35 @@ def test_planar_texture_weights_reach_the_generator():
     assert edges({"flat": 1.0}) < 0.5 * edges({"grating": 1.0, "text": 1.0})
 
 
+def test_picture_folders_join_the_planar_pictures(tmp_path):
+    import imageio.v3 as iio
+
+    from evdense.training.planar import find_pictures
+
+    folder = tmp_path / "pictures"
+    (folder / "sub").mkdir(parents=True)
+    for i in range(200):  # plain pictures: with them the planar scenes lose many of their edges
+        iio.imwrite(folder / "sub" / f"plain_{i:03d}.png", np.full((16, 16), 128, np.uint8))
+    (folder / "notes.txt").write_text("not a picture")
+    names = find_pictures((str(folder),))
+    assert len(names) == 200 and names == tuple(sorted(names))
+    assert all(n.startswith("file:") and n.endswith(".png") for n in names)
+
+    def edges(dirs):
+        data = {**TINY["data"], "planar_fraction": 1.0, "planar_textures": {"picture": 1.0},
+                "picture_dirs": dirs}  # fmt: skip
+        seqs = [simulate_sequence(TrainDataConfig(**data), "train", i) for i in range(3)]
+        return np.mean([np.abs(np.diff(s.targets, axis=-1)).mean() for s in seqs if s is not None])
+
+    # the same seeds: the two would be equal if the folder were ignored
+    assert edges([str(folder)]) < 0.75 * edges([])
+    with pytest.raises(ValueError, match=r"train\.data\.picture_dirs: .*missing is not a folder"):
+        TrainConfig.from_dict({"data": {"picture_dirs": [str(tmp_path / "missing")]}})
+    with pytest.raises(ValueError, match=r"train\.mix\[0\]\.picture_dirs: .*sub2 holds no"):
+        (tmp_path / "sub2").mkdir()
+        TrainConfig.from_dict({"mix": [{"picture_dirs": [str(tmp_path / "sub2")]}]}).mix_recipes()
+
+
 def test_training_runs_as_a_module_with_the_train_command():
     import subprocess
     import sys

@@ -55,7 +55,7 @@ from evdense.log import get_logger, progress
 from evdense.sim.esim import EventCameraConfig, simulate_event_stream
 from evdense.sim.render import RenderConfig, Renderer
 from evdense.sim.scene import build_scene
-from evdense.training.planar import TEXTURE_KINDS, PlanarConfig
+from evdense.training.planar import TEXTURE_KINDS, TRAIN_PICTURES, PlanarConfig, find_pictures
 
 log = get_logger("training")
 
@@ -135,6 +135,12 @@ class TrainDataConfig:
     """Relative frequency of each texture kind of the planar generator (picture, dead_leaves, noise,
     flat, shapes, text, grating, mosaic; a kind left out is not drawn). The default leaves out
     mosaic (textured dead leaves filled from the other kinds)."""
+    picture_dirs: list[str] = field(default_factory=list)
+    """Folders whose images (.jpg, .jpeg, .png, found recursively, in sorted order) join the
+    planar generator's built-in pictures for its ``picture`` kind and the mosaic's fills. Relative
+    paths are from the working directory; a folder that is missing or holds no image is an error.
+    Default: none, only the pictures scikit-image and Matplotlib install.
+    ``benchmarks/make_picture_pool.sh`` makes one from Debian packages."""
     low_contrast_fraction: float = 0.0
     """Fraction of the 3D scenes' surface textures (train and val) drawn with a low contrast: mean
     level log-uniform in [0.03, 0.8], high / low ratio log-uniform in [1.05, 3] (plain or faintly
@@ -149,6 +155,7 @@ class TrainDataConfig:
         if any(not v >= 0 for v in w) or not sum(w) > 0:
             raise ValueError("train.data.planar_textures: weights must be >= 0 with a positive sum, "
                              f"not {self.planar_textures}")  # fmt: skip
+        find_pictures(tuple(self.picture_dirs))  # a missing or empty folder fails before simulating
 
 
 HELDOUT_RECIPE = {
@@ -476,7 +483,8 @@ def _planar_recipe(
 
     hdr = rng.random() < conf.hdr_fraction
     dyn = _loguniform(rng, 10.0, conf.dynamic_range_max) if hdr else 1.0
-    planar = PlanarConfig(texture_weights=dict(conf.planar_textures))
+    pictures = TRAIN_PICTURES + find_pictures(tuple(conf.picture_dirs))
+    planar = PlanarConfig(texture_weights=dict(conf.planar_textures), pictures=pictures)
     scene = PlanarScene(rng, conf.width, conf.height, 0.5, dynamic_range=dyn, conf=planar)
     cam = _event_camera(conf, split, rng)
     n, epp = _window_size(conf, split, rng)

@@ -68,6 +68,13 @@ TRAIN_PICTURES = (
 )
 """Pictures the planar generator draws from (all installed with scikit-image and Matplotlib)."""
 
+PICTURE_SUFFIXES = (".jpg", ".jpeg", ".png")
+"""Image files :func:`find_pictures` takes from a folder."""
+
+MAX_FILE_PICTURE_PX = 1024
+"""Longest side a ``file:`` picture is kept at: :func:`random_texture` scales a picture to at most
+twice the 512-texel texture side, so a larger one would only cost memory in the cache."""
+
 TEXTURE_KINDS = ("picture", "dead_leaves", "noise", "flat", "shapes", "text", "grating", "mosaic")
 
 
@@ -87,6 +94,8 @@ class PlanarConfig:
         }
     )
     """Relative frequency of each texture kind (:data:`TEXTURE_KINDS`; a kind left out is not drawn)."""
+    pictures: tuple[str, ...] = TRAIN_PICTURES
+    """Pictures of the ``picture`` kind (names as :func:`load_picture` takes them)."""
     max_objects: int = 4
     """Most foreground objects in a scene."""
     supersample: int = 2
@@ -114,10 +123,42 @@ def _to_gray(img: np.ndarray) -> np.ndarray:
     return np.clip((img - lo) / max(hi - lo, 1e-6), 0, 1).astype(np.float32)
 
 
+@functools.lru_cache(maxsize=16)
+def find_pictures(folders: tuple[str, ...]) -> tuple[str, ...]:
+    """``file:`` names of the images (:data:`PICTURE_SUFFIXES`) anywhere below each folder, sorted
+    so that a draw does not depend on the file system's order. A folder that is missing or holds
+    no image raises ``ValueError`` naming it."""
+    names: list[str] = []
+    for folder in folders:
+        root = Path(folder)
+        if not root.is_dir():
+            raise ValueError(f"train.data.picture_dirs: {root} is not a folder")
+        found = sorted(str(f) for f in root.rglob("*") if f.suffix.lower() in PICTURE_SUFFIXES)
+        if not found:
+            raise ValueError(
+                f"train.data.picture_dirs: {root} holds no {'/'.join(PICTURE_SUFFIXES)} image"
+            )
+        names += [f"file:{f}" for f in found]
+    return tuple(names)
+
+
 @functools.lru_cache(maxsize=64)
 def load_picture(name: str) -> np.ndarray:
-    """One of :data:`TRAIN_PICTURES` as grey ``(h, w)`` float32 in [0, 1] (display-encoded)."""
+    """A picture as grey ``(h, w)`` float32 in [0, 1] (display-encoded): one of
+    :data:`TRAIN_PICTURES`, or ``file:PATH`` for any image file."""
     kind, _, ref = name.partition(":")
+    if kind == "file":
+        import imageio.v3 as iio
+
+        try:
+            img = _to_gray(iio.imread(ref))
+        except Exception as exc:
+            raise ValueError(f"{ref}: not a readable picture ({exc})") from exc
+        if max(img.shape) > MAX_FILE_PICTURE_PX:  # the generator never samples finer than this
+            from skimage.transform import rescale
+
+            img = rescale(img, MAX_FILE_PICTURE_PX / max(img.shape), anti_aliasing=True)
+        return img.astype(np.float32)
     if kind == "skimage":
         import skimage.data
 
@@ -214,7 +255,9 @@ def _text_texture(rng: np.random.Generator, size: int, low: float, high: float) 
     return np.asarray(img, np.float32)
 
 
-def _mosaic_texture(rng: np.random.Generator, size: int, weights: dict[str, float]) -> np.ndarray:
+def _mosaic_texture(
+    rng: np.random.Generator, size: int, weights: dict[str, float], pictures: tuple[str, ...]
+) -> np.ndarray:
     """Textured dead leaves: the occlusion layout of a dead-leaves image whose disks are filled, each
     with its own level and contrast, from a few textures of the other kinds.
 
@@ -224,7 +267,8 @@ def _mosaic_texture(rng: np.random.Generator, size: int, weights: dict[str, floa
     """
     inner = {k: w for k, w in weights.items() if k != "mosaic" and w > 0}
     inner.setdefault("flat", 0.1)
-    fills = np.stack([random_texture(rng, size, inner) for _ in range(int(rng.integers(3, 7)))])
+    n_fills = int(rng.integers(3, 7))
+    fills = np.stack([random_texture(rng, size, inner, pictures) for _ in range(n_fills)])
     fills -= fills.mean((1, 2), keepdims=True)
     labels, _ = dead_leaves_labels(size, float(rng.uniform(4, 16)), float(rng.uniform(60, 300)),
                                    float(rng.uniform(2.0, 3.0)), rng)  # fmt: skip
@@ -238,8 +282,14 @@ def _mosaic_texture(rng: np.random.Generator, size: int, weights: dict[str, floa
     return np.clip(tex, 0.01, 1).astype(np.float32)
 
 
-def random_texture(rng: np.random.Generator, size: int, weights: dict[str, float]) -> np.ndarray:
-    """A random grey reflectance texture ``(size, size)`` float32 in (0, 1] (see module docstring)."""
+def random_texture(
+    rng: np.random.Generator,
+    size: int,
+    weights: dict[str, float],
+    pictures: tuple[str, ...] = TRAIN_PICTURES,
+) -> np.ndarray:
+    """A random grey reflectance texture ``(size, size)`` float32 in (0, 1] (see module docstring);
+    the ``picture`` kind draws from ``pictures``."""
     kinds = [k for k in TEXTURE_KINDS if k in weights]  # a fixed order: the draw ignores dict order
     p = np.array([weights[k] for k in kinds], np.float64)
     kind = str(rng.choice(kinds, p=p / p.sum()))
@@ -248,7 +298,7 @@ def random_texture(rng: np.random.Generator, size: int, weights: dict[str, float
     if kind == "picture":
         from skimage.transform import rescale, rotate
 
-        pic = load_picture(str(rng.choice(TRAIN_PICTURES)))
+        pic = load_picture(str(rng.choice(pictures)))
         scale = float(np.exp(rng.uniform(np.log(0.35), np.log(2.0))))
         pic = rescale(pic, scale * size / max(pic.shape), anti_aliasing=scale < 1)
         if rng.random() < 0.5:
@@ -288,7 +338,7 @@ def random_texture(rng: np.random.Generator, size: int, weights: dict[str, float
     elif kind == "text":
         return np.clip(_text_texture(rng, size, low, high), 0.01, 1).astype(np.float32)
     elif kind == "mosaic":
-        return _mosaic_texture(rng, size, weights)
+        return _mosaic_texture(rng, size, weights, pictures)
     else:  # grating: sine or square wave of random period and orientation
         yy, xx = np.mgrid[:size, :size].astype(np.float32)
         th = float(rng.uniform(0, np.pi))
@@ -413,7 +463,7 @@ class PlanarScene:
         extent = float(np.exp(rng.uniform(np.log(0.3), np.log(3.0))))
         size = 512
         layers: list[_Layer] = []
-        bg = random_texture(rng, size, conf.texture_weights)
+        bg = random_texture(rng, size, conf.texture_weights, conf.pictures)
         chans = [bg]
         if self.dynamic_range > 1:
             light = _light_mask(rng, size)
@@ -425,7 +475,7 @@ class PlanarScene:
                              bscale, True))  # fmt: skip
         for _ in range(int(rng.integers(0, conf.max_objects + 1))):
             osize = 256
-            t = random_texture(rng, osize, conf.texture_weights)
+            t = random_texture(rng, osize, conf.texture_weights, conf.pictures)
             m = _soft_mask(rng, osize)
             otex = torch.from_numpy(np.stack([t * m, m]))[None]
             oscale = float(np.exp(rng.uniform(np.log(0.8), np.log(5.0)))) * osize / W
