@@ -138,7 +138,9 @@ class TrainDataConfig:
     picture_dirs: list[str] = field(default_factory=list)
     """Folders whose images (.jpg, .jpeg, .png, found recursively, in sorted order) join the
     planar generator's built-in pictures for its ``picture`` kind and the mosaic's fills. Relative
-    paths are from the working directory; a folder that is missing or holds no image is an error.
+    paths are from the working directory (the repository root for the workflow's train rule); a
+    folder that is missing or holds no image is an error. The set records the folders, not their
+    content: rebuild a pool elsewhere and the same seed may draw other pictures.
     Default: none, only the pictures scikit-image and Matplotlib install.
     ``benchmarks/make_picture_pool.sh`` makes one from Debian packages."""
     low_contrast_fraction: float = 0.0

@@ -133,7 +133,9 @@ def find_pictures(folders: tuple[str, ...]) -> tuple[str, ...]:
         root = Path(folder)
         if not root.is_dir():
             raise ValueError(f"train.data.picture_dirs: {root} is not a folder")
-        found = sorted(str(f) for f in root.rglob("*") if f.suffix.lower() in PICTURE_SUFFIXES)
+        found = sorted(
+            str(f) for f in root.rglob("*") if f.suffix.lower() in PICTURE_SUFFIXES and f.is_file()
+        )
         if not found:
             raise ValueError(
                 f"train.data.picture_dirs: {root} holds no {'/'.join(PICTURE_SUFFIXES)} image"
@@ -256,7 +258,10 @@ def _text_texture(rng: np.random.Generator, size: int, low: float, high: float) 
 
 
 def _mosaic_texture(
-    rng: np.random.Generator, size: int, weights: dict[str, float], pictures: tuple[str, ...]
+    rng: np.random.Generator,
+    size: int,
+    weights: dict[str, float],
+    pictures: tuple[str, ...] = TRAIN_PICTURES,
 ) -> np.ndarray:
     """Textured dead leaves: the occlusion layout of a dead-leaves image whose disks are filled, each
     with its own level and contrast, from a few textures of the other kinds.

@@ -226,7 +226,10 @@ class TrainConfig:
             try:
                 recipe = section_from_dict(TrainDataConfig, {**asdict(self.data), **entry}, where)
             except ValueError as e:  # the recipe's own checks name train.data
-                raise ValueError(str(e).replace("train.data", where)) from None
+                msg = str(e)
+                if msg.startswith("train.data"):
+                    msg = where + msg.removeprefix("train.data")
+                raise ValueError(msg) from None
             out.append(MixRecipe(recipe, int(n), int(seed)))
         return out
 
