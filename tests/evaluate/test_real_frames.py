@@ -103,7 +103,9 @@ def test_a_texture_draw_ignores_the_order_of_the_weights():
 def test_mosaic_fills_occluding_disks_with_textures_of_their_own():
     for seed in range(4):
         # fills of 1/f noise (and the plain fill every mosaic may draw)
-        tex = _mosaic_texture(np.random.default_rng(seed), 256, {"noise": 1.0, "mosaic": 1.0})
+        tex = _mosaic_texture(
+            np.random.default_rng(seed), 256, {"noise": 1.0, "mosaic": 1.0}, TRAIN_PICTURES
+        )
         assert tex.shape == (256, 256) and tex.min() > 0 and tex.max() <= 1
         gy, gx = np.gradient(tex.astype(np.float64))
         assert (np.hypot(gx, gy) > 1e-3).mean() > 0.5  # texture inside the disks, not plain disks

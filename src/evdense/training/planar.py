@@ -258,10 +258,7 @@ def _text_texture(rng: np.random.Generator, size: int, low: float, high: float) 
 
 
 def _mosaic_texture(
-    rng: np.random.Generator,
-    size: int,
-    weights: dict[str, float],
-    pictures: tuple[str, ...] = TRAIN_PICTURES,
+    rng: np.random.Generator, size: int, weights: dict[str, float], pictures: tuple[str, ...]
 ) -> np.ndarray:
     """Textured dead leaves: the occlusion layout of a dead-leaves image whose disks are filled, each
     with its own level and contrast, from a few textures of the other kinds.
