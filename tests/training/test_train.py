@@ -595,8 +595,8 @@ def test_picture_folders_join_the_planar_pictures(tmp_path):
     assert edges([str(folder)]) < 0.75 * edges([])
     with pytest.raises(ValueError, match=r"train\.data\.picture_dirs: .*missing is not a folder"):
         TrainConfig.from_dict({"data": {"picture_dirs": [str(tmp_path / "missing")]}})
+    (tmp_path / "sub2").mkdir()
     with pytest.raises(ValueError, match=r"train\.mix\[0\]\.picture_dirs: .*sub2 holds no"):
-        (tmp_path / "sub2").mkdir()
         TrainConfig.from_dict({"mix": [{"picture_dirs": [str(tmp_path / "sub2")]}]}).mix_recipes()
 
 

@@ -553,7 +553,8 @@ def train_model(
     ``mix_paths``: further sets (``train.mix``) whose training sequences join those of
     ``data_path``; validation uses ``data_path``'s. Resumes from the latest checkpoint in
     ``out_dir/checkpoints`` when ``resume``; ``max_steps`` stops this session early (the
-    schedule still follows ``conf.max_steps``), for tests and for splitting a run. Best-validation weights go to ``weights_path`` (``.pt`` + ``.json``).
+    schedule still follows ``conf.max_steps``), for tests and for splitting a run.
+    Best-validation weights go to ``weights_path`` (``.pt`` + ``.json``).
     """
     out_dir, weights_path = Path(out_dir), Path(weights_path)
     out_dir.mkdir(parents=True, exist_ok=True)
