@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from evdense.evaluate.real_frames import evaluate_clip, read_ecd_clip, read_rotation_clip
+from evdense.evaluate.real_frames import evaluate_clip, read_anchor_clips
 from evdense.recon.checkpoints import load_checkpoint
 from evdense.recon.inference import NetworkReconstructor
 
@@ -45,13 +45,10 @@ def main() -> None:
     ap.add_argument("--trace", action="store_true", help="print each frame's SSIM and window")
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
-    data = Path(args.anchors) / "data"
-    if not data.is_dir():
-        raise SystemExit(f"{data}: anchors not found")
-    clips = [read_ecd_clip(data / "ecd_slider_depth")]
-    clips += [
-        read_rotation_clip(d) for d in sorted((data / "ecd_rotation").iterdir()) if d.is_dir()
-    ]
+    try:
+        clips = read_anchor_clips(Path(args.anchors) / "data")
+    except FileNotFoundError as e:
+        raise SystemExit(str(e)) from None
     # one row per checkpoint, named by its folder and file when there are several
     methods = {f"{Path(p).parent.name}/{Path(p).stem}" if len(args.ours) > 1 else "ours": p
                for p in args.ours}  # fmt: skip

@@ -8,6 +8,7 @@ import pytest
 from evdense.evaluate.real_frames import (
     RealClip,
     evaluate_clip,
+    read_anchor_clips,
     read_ecd_clip,
     read_rotation_clip,
     shifted_metrics,
@@ -72,6 +73,11 @@ def test_real_ecd_clips_read(anchors):
     assert len(rot.t) == 20_000 and rot.frames[0][0] is None
     img = rot.frames[0][1]
     assert img.shape == (180, 240) and 0.1 < img.mean() < 0.5  # the dark APS panel
+    clips = read_anchor_clips(anchors / "data")
+    assert [c.name for c in clips][0] == "ecd_slider_depth" and len(clips) == 5
+    assert np.array_equal(clips[-1].t, rot.t)  # the rotation chunks in sorted order, shapes last
+    with pytest.raises(FileNotFoundError, match="nowhere"):
+        read_anchor_clips(anchors / "nowhere")
 
 
 def test_planar_textures_and_renders_are_sane():

@@ -113,6 +113,17 @@ def read_rotation_clip(folder: str | Path) -> RealClip:
     return RealClip(folder.name, t, x, y, p, w, h, [(None, _grey(pic[h : 2 * h, :w]))])
 
 
+def read_anchor_clips(data: str | Path) -> list[RealClip]:
+    """The real clips of the anchors' ``data`` folder in benchmark order: ``ecd_slider_depth``,
+    then each folder of ``ecd_rotation`` in sorted order."""
+    data = Path(data)
+    if not data.is_dir():
+        raise FileNotFoundError(f"{data}: anchors data folder not found")
+    clips = [read_ecd_clip(data / "ecd_slider_depth")]
+    rot = data / "ecd_rotation"
+    return clips + [read_rotation_clip(d) for d in sorted(rot.iterdir()) if d.is_dir()]
+
+
 def shifted_metrics(pred: np.ndarray, ref: np.ndarray, max_shift: int) -> dict[str, float]:
     """MSE and SSIM of ``pred`` against ``ref`` at the best integer shift (see module docstring).
 
