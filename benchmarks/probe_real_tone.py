@@ -64,7 +64,7 @@ def main() -> None:
         )
         for c in clips
     ]
-    methods = {Path(p).stem: p for p in args.ours}
+    methods = {f"{Path(p).parent.name}/{Path(p).stem}": p for p in args.ours}
     methods["FireNet"] = str(Path(args.anchors) / "weights/firenet_1000.pth.tar")
     n = int(round(args.events_per_pixel * 240 * 180 / 1000)) * 1000
     names = [c.name for c in clips]
