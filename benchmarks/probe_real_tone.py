@@ -32,7 +32,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from evdense.evaluate.real_frames import evaluate_clip, read_anchor_clips
+from evdense.evaluate.real_frames import read_anchor_clips, reconstruct_clip, score_clip
 from evdense.recon.checkpoints import load_checkpoint
 from evdense.recon.inference import NetworkReconstructor
 
@@ -73,15 +73,20 @@ def main() -> None:
     print("| --- " * (len(names) + 3) + "|")
     for name, path in methods.items():
         net = load_checkpoint(path).net
+        # each clip reconstructed once; every remap is scored on the same frames
+        runs = [
+            reconstruct_clip(
+                c, lambda net=net: NetworkReconstructor(net, voxel_clip=args.voxel_clip), n
+            )
+            for c in clips
+        ]
         rows = [(remap, clips, f) for remap, f in REMAPS.items()]
         rows.append(("as is, against log APS", log_clips, REMAPS["as is"]))
         for remap, cs, f in rows:
-
-            def make(f=f, net=net) -> Callable[[np.ndarray], np.ndarray]:
-                rec = NetworkReconstructor(net, voxel_clip=args.voxel_clip)
-                return lambda v: f(np.asarray(rec(v), np.float64))
-
-            ssim = [float(np.mean([r["ssim"] for r in evaluate_clip(c, make, n)])) for c in cs]
+            ssim = [
+                float(np.mean([r["ssim"] for r in score_clip(c, ends, [f(x) for x in frames])]))
+                for c, (ends, frames) in zip(cs, runs, strict=True)
+            ]
             cells = " | ".join(f"{s:.3f}" for s in ssim)
             print(f"| {name} | {remap} | {cells} | {np.mean(ssim):.4f} |")
 

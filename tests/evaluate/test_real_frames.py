@@ -74,7 +74,7 @@ def test_real_ecd_clips_read(anchors):
     img = rot.frames[0][1]
     assert img.shape == (180, 240) and 0.1 < img.mean() < 0.5  # the dark APS panel
     clips = read_anchor_clips(anchors / "data")
-    assert [c.name for c in clips][0] == "ecd_slider_depth" and len(clips) == 5
+    assert clips[0].name == "ecd_slider_depth" and len(clips) == 5
     assert np.array_equal(clips[-1].t, rot.t)  # the rotation chunks in sorted order, shapes last
     with pytest.raises(FileNotFoundError, match="nowhere"):
         read_anchor_clips(anchors / "nowhere")

@@ -175,23 +175,29 @@ def evaluate_clip(
     bins: int = 5,
     max_shift: int = 10,
 ) -> list[dict[str, float]]:
-    """Run a fresh method from ``make()`` over ``clip`` and score it against each of its frames.
+    """Run a fresh method from ``make()`` over ``clip`` and score it against each of its frames
+    (:func:`reconstruct_clip`, then :func:`score_clip`). One row per frame."""
+    ends, frames = reconstruct_clip(clip, make, events_per_window, bins)
+    return score_clip(clip, ends, frames, max_shift)
 
-    Windows as :func:`reconstruct_clip`. A frame with a time is compared with the window whose
-    end is nearest, when that is within one window's span of the first or last window; a frame
-    without one with the last window. One row per frame.
-    """
-    ends_a, frames = reconstruct_clip(clip, make, events_per_window, bins)
-    span = (ends_a[-1] - int(clip.t[0])) / len(ends_a)
+
+def score_clip(
+    clip: RealClip, ends: np.ndarray, frames: list[np.ndarray], max_shift: int = 10
+) -> list[dict[str, float]]:
+    """Score the reconstructions ``frames`` of windows ending at ``ends`` (as returned by
+    :func:`reconstruct_clip`) against each frame of ``clip``. A frame with a time is compared with
+    the window whose end is nearest, when that is within one window's span of the first or last
+    window; a frame without one with the last window. One row per frame."""
+    span = (ends[-1] - int(clip.t[0])) / len(ends)
     rows = []
     for k, (t_us, img) in enumerate(clip.frames):
         if t_us is None:
             j = len(frames) - 1
         else:
-            if t_us < ends_a[0] - span / 2 or t_us > ends_a[-1] + span / 2:
+            if t_us < ends[0] - span / 2 or t_us > ends[-1] + span / 2:
                 continue
-            j = int(np.argmin(np.abs(ends_a - t_us)))
+            j = int(np.argmin(np.abs(ends - t_us)))
         s = shifted_metrics(frames[j], img, max_shift)
-        dt = None if t_us is None else (int(ends_a[j]) - t_us) * 1e-3
+        dt = None if t_us is None else (int(ends[j]) - t_us) * 1e-3
         rows.append({"frame": k, "window": j, "dt_ms": dt, **s})
     return rows
