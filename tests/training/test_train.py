@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 
+import h5py
 import numpy as np
 import pytest
 import torch
@@ -18,6 +19,7 @@ from evdense.training.data import (
     TrainDataConfig,
     generate_dataset,
     load_split,
+    power_targets,
     random_scene_spec,
     simulate_sequence,
 )
@@ -137,6 +139,31 @@ def test_heldout_split_does_not_follow_the_training_recipe():
     assert a is not None and b is not None
     assert a.recipe["generator"] == "scene3d"
     assert np.array_equal(a.voxels, b.voxels) and a.recipe == b.recipe
+
+
+def test_target_power_derives_linear_targets_from_the_stored_log_radiance(tiny_set):
+    _, path = tiny_set
+    stored = load_split(path, "val")[1].astype(np.float32)
+    assert np.allclose(load_split(path, "val", 0.0)[1], stored, atol=1e-3)
+    lin = load_split(path, "val", 1.0)[1].astype(np.float32)
+    with h5py.File(path, "r") as f:
+        ranges = [f["val"][n]["log_radiance_range"][()] for n in sorted(f["val"])]
+    for s, (lo, hi) in enumerate(ranges):
+        floor = np.exp(lo - hi)  # the stored log target t turned linear: (e^{(hi-lo)(t-1)} - f) / (1 - f)
+        expect = (np.exp((hi - lo) * (stored[s] - 1)) - floor) / (1 - floor)
+        assert np.allclose(lin[s], expect, atol=1e-2)
+        # the same pixels clip at both ends, and the linear tone lies below the log one between
+        assert np.all(lin[s][stored[s] == 0] == 0) and np.all(lin[s][stored[s] == 1] > 0.99)
+        mid = (stored[s] > 0.05) & (stored[s] < 0.95)
+        assert mid.any() and np.all(lin[s][mid] < stored[s][mid])
+    # exact values: radiance e^0 .. e^2 over the range (0, 2), at the powers 0, 1 and 2
+    logr = np.array([0.0, 1.0, 2.0], np.float32)
+    assert np.allclose(power_targets(logr, (0.0, 2.0), 0.0), [0, 0.5, 1])
+    e = np.e
+    assert np.allclose(power_targets(logr, (0.0, 2.0), 1.0), [0, (e - 1) / (e**2 - 1), 1])
+    assert np.allclose(power_targets(logr, (0.0, 2.0), 2.0), [0, (e**2 - 1) / (e**4 - 1), 1])
+    with pytest.raises(ValueError, match="target_power"):
+        TrainConfig.from_dict({"target_power": -0.5})
 
 
 def test_ssim_matches_scikit_image():

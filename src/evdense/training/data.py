@@ -700,10 +700,34 @@ def _check_format(f: h5py.File, path: str | Path) -> None:
         raise ValueError(f"{path}: not an evdense training set (format {f.attrs.get('format')!r})")
 
 
-def load_split(path: str | Path, split: str) -> tuple[np.ndarray, np.ndarray]:
+def power_targets(log_radiance: np.ndarray, log_range: tuple[float, float], power: float) -> np.ndarray:
+    """Targets in [0, 1] from log radiance in another tone: ``R ** power`` mapped to [0, 1] by the
+    same robust range ``(q_lo, q_hi)`` as the stored log targets, i.e.
+    ``clip((R**p - R_lo**p) / (R_hi**p - R_lo**p), 0, 1)`` with ``R_lo = exp(q_lo)``.
+
+    ``power`` 1 is linear radiance (what FireNet was trained to output), 1/2.2 roughly
+    display-encoded; as ``power`` tends to 0 it tends to the log targets, which ``power`` 0 returns
+    exactly. The percentiles stay those of the log range (a monotonic map keeps them), so a
+    sequence's brightest 0.5 % still saturates and its darkest 0.5 % still clips at 0.
+    """
+    lo, hi = float(log_range[0]), float(log_range[1])
+    logr = np.asarray(log_radiance, dtype=np.float32)
+    if power == 0.0:
+        t = (logr - lo) / max(hi - lo, 1e-12)
+    else:  # relative to hi, so that exp() never overflows
+        floor = np.exp(power * (lo - hi))
+        t = (np.exp(power * (logr - hi)) - floor) / max(1.0 - floor, 1e-12)
+    return np.clip(t, 0.0, 1.0).astype(np.float32)
+
+
+def load_split(
+    path: str | Path, split: str, target_power: float | None = None
+) -> tuple[np.ndarray, np.ndarray]:
     """All voxels ``(S, W, B, H, Wd)`` float16 and targets ``(S, W, H, Wd)`` float16 of one split.
 
-    Raises ``ValueError`` when the file is not a training set or lacks the split.
+    ``target_power``: None returns the stored (log) targets; a number derives them from the stored
+    log radiance with :func:`power_targets` (0 gives the stored targets again, to float16
+    rounding). Raises ``ValueError`` when the file is not a training set or lacks the split.
     """
     with h5py.File(path, "r") as f:
         _check_format(f, path)
@@ -714,5 +738,12 @@ def load_split(path: str | Path, split: str) -> tuple[np.ndarray, np.ndarray]:
         if not names:
             raise ValueError(f"{path}: split {split!r} has no sequences")
         vox = np.stack([g[n]["voxels"][()] for n in names])
-        tgt = np.stack([g[n]["targets"][()] for n in names])
+        if target_power is None:
+            tgt = np.stack([g[n]["targets"][()] for n in names])
+        else:
+            tgt = np.stack([
+                power_targets(g[n]["log_radiance"][()], g[n]["log_radiance_range"][()],
+                              target_power).astype(np.float16)
+                for n in names
+            ])  # fmt: skip
     return vox, tgt
