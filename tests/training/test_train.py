@@ -149,7 +149,8 @@ def test_target_power_derives_linear_targets_from_the_stored_log_radiance(tiny_s
     with h5py.File(path, "r") as f:
         ranges = [f["val"][n]["log_radiance_range"][()] for n in sorted(f["val"])]
     for s, (lo, hi) in enumerate(ranges):
-        floor = np.exp(lo - hi)  # the stored log target t turned linear: (e^{(hi-lo)(t-1)} - f) / (1 - f)
+        # the stored log target t turned linear: (e^{(hi-lo)(t-1)} - f) / (1 - f)
+        floor = np.exp(lo - hi)
         expect = (np.exp((hi - lo) * (stored[s] - 1)) - floor) / (1 - floor)
         assert np.allclose(lin[s], expect, atol=1e-2)
         # the same pixels clip at both ends, and the linear tone lies below the log one between

@@ -700,7 +700,9 @@ def _check_format(f: h5py.File, path: str | Path) -> None:
         raise ValueError(f"{path}: not an evdense training set (format {f.attrs.get('format')!r})")
 
 
-def power_targets(log_radiance: np.ndarray, log_range: tuple[float, float], power: float) -> np.ndarray:
+def power_targets(
+    log_radiance: np.ndarray, log_range: tuple[float, float], power: float
+) -> np.ndarray:
     """Targets in [0, 1] from log radiance in another tone: ``R ** power`` mapped to [0, 1] by the
     same robust range ``(q_lo, q_hi)`` as the stored log targets, i.e.
     ``clip((R**p - R_lo**p) / (R_hi**p - R_lo**p), 0, 1)`` with ``R_lo = exp(q_lo)``.

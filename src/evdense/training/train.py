@@ -632,9 +632,7 @@ def train_model(
         **({"mix": mix_record} if mix_record else {}),
         "seed": conf.seed,
         "device": describe_device(dev),
-        "target": (
-            "log radiance" if not conf.target_power else f"radiance ** {conf.target_power}"
-        )
+        "target": ("log radiance" if not conf.target_power else f"radiance ** {conf.target_power}")
         + " at the window end, per-sequence robust range "
         f"(log-radiance percentiles {data_conf.target_percentiles}) mapped to [0, 1]",
         "input_normalization": "nonzero (non-zero voxels of each window to mean 0, std 1)",
