@@ -19,7 +19,7 @@ the L1 between 4 x 4 and 8 x 8 block means of prediction and target (:func:`lowf
 weighs the large-scale levels (a plain wall against the floor beside it) that the SSIM window and
 the texture-dominated pixel L1 leave to chance. It is aimed at a network that renders fine texture
 with a high gain and the steps between large plain regions with a low one; a short fine-tune at
-weights 2 and 8 did not change that (the ablation table in docs/benchmarks.md).
+weights 2 and 8 did not change that (the ablation table in docs/training.md).
 ``LossWeights.ssim_range`` gives the SSIM term the constants of a smaller data range, so that it
 weighs texture too faint for the standard SSIM (on the real clips a trade, not a gain: same table).
 ``LossWeights.perceptual`` adds a feature loss without pretrained weights (:func:`random_feature_loss`):
