@@ -548,7 +548,7 @@ def run_sequence(
         logr[k] = np.log(radiance_at(t_end[k] * 1e-6) + cam.log_eps)
     lo, hi = np.percentile(logr, conf.target_percentiles)
     hi = max(hi, lo + 1e-3)
-    targets = np.clip((logr - lo) / (hi - lo), 0.0, 1.0).astype(np.float32)
+    targets = power_targets(logr, (lo, hi), 0.0)
     recipe = {
         "split": split,
         "seed": seed,
@@ -709,11 +709,14 @@ def power_targets(
 
     ``power`` 1 is linear radiance (what FireNet was trained to output), 1/2.2 roughly
     display-encoded; as ``power`` tends to 0 it tends to the log targets, which ``power`` 0 returns
-    exactly. The percentiles stay those of the log range (a monotonic map keeps them), so a
+    exactly (it is the one definition of them: :func:`run_sequence` makes the stored targets with
+    it). The percentiles stay those of the log range (a monotonic map keeps them), so a
     sequence's brightest 0.5 % still saturates and its darkest 0.5 % still clips at 0.
     """
-    lo, hi = float(log_range[0]), float(log_range[1])
-    logr = np.asarray(log_radiance, dtype=np.float32)
+    lo, hi = np.float64(log_range[0]), np.float64(log_range[1])
+    logr = np.asarray(log_radiance)
+    if logr.dtype == np.float16:  # as stored targets are; exp() needs more range
+        logr = logr.astype(np.float32)
     if power == 0.0:
         t = (logr - lo) / max(hi - lo, 1e-12)
     else:  # relative to hi, so that exp() never overflows
