@@ -11,6 +11,7 @@ from evdense.events.container import EventFile, Events
 from evdense.sim.esim import (
     EventCameraConfig,
     EventSimulator,
+    PhotoreceptorFilter,
     log_intensity,
     simulate_event_stream,
     write_event_stream,
@@ -46,6 +47,37 @@ def test_single_pixel_ramp_gives_every_crossing_at_its_time(rate):
     assert np.all(ev.p == np.sign(rate))
     expected_t = np.arange(1, n_expected + 1) * c / abs(rate) * 1e6
     np.testing.assert_allclose(ev.t, expected_t, atol=1.0)  # microsecond rounding only
+
+
+def test_limited_bandwidth_delays_a_ramp_by_tau_and_dim_pixels_more():
+    """With ``cutoff_hz`` the crossings of a log-linear ramp come ``tau = 1 / (2 pi f)`` late once
+    the filter has settled (its output trails a ramp by slope x tau); a pixel 1,000 times dimmer
+    runs at the floor of the cut-off, so it lags ten times more."""
+    rate, c, f = 12.0, 0.2, 100.0
+    conf = ideal(contrast_pos=c, contrast_neg=c, cutoff_hz=f, cutoff_floor=0.1)
+    eps = conf.log_eps
+
+    def radiance(t: float) -> np.ndarray:
+        bright = np.exp(rate * t) - eps  # starts at the reference radiance (about 1)
+        return np.array([[bright, 1e-3 * (bright + eps) - eps]])
+
+    ev, _ = run(radiance, 0.0, 0.49, conf)
+    tau = 1.0 / (2 * np.pi * f)
+    ideal_t = np.arange(1, 30) * c / rate
+    bright = ev.t[ev.x == 0] * 1e-6
+    np.testing.assert_allclose(bright, (ideal_t + tau)[: len(bright)], atol=2e-6)
+    assert len(bright) == int(np.floor((0.49 - tau) * rate / c))
+    dim = ev.t[ev.x == 1] * 1e-6
+    early = dim[(dim > 0.15) & (dim < 0.35)]  # settled, and still below 10 % of the reference
+    lag = early - ideal_t[np.searchsorted(ideal_t, early) - 1]
+    np.testing.assert_allclose(lag, 10 * tau, atol=2e-6)
+    # The filter alone: a constant input after a step decays as exp(-t / tau), step size free.
+    lp = PhotoreceptorFilter(np.zeros((1, 1)), conf)
+    y_fine = [lp.advance(np.ones((1, 1)), 1e-4)[0, 0] for _ in range(50)]
+    lp2 = PhotoreceptorFilter(np.zeros((1, 1)), conf)
+    lp2.advance(np.ones((1, 1)), 1e-4)  # the same jump in the first step, then one long step
+    y_long = lp2.advance(np.ones((1, 1)), 49e-4)[0, 0]
+    np.testing.assert_allclose(y_long, y_fine[-1], rtol=1e-12)
 
 
 def test_multiple_crossings_in_one_step_are_interpolated():

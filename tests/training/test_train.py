@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from dataclasses import asdict
 
 import h5py
 import numpy as np
@@ -133,12 +134,34 @@ def test_low_contrast_fraction_gives_plain_walls_in_training_scenes_only():
 def test_heldout_split_does_not_follow_the_training_recipe():
     base = TrainDataConfig(**TINY["data"])
     other = TrainDataConfig(**{**TINY["data"], "contrast_range": [0.5, 0.6], "planar_fraction": 1.0,
-                               "noise_rate_range": [3.0, 4.0], "max_duration_s": 2.0})  # fmt: skip
+                               "noise_rate_range": [3.0, 4.0], "max_duration_s": 2.0,
+                               "cutoff_hz": [50.0, 100.0]})  # fmt: skip
     a = simulate_sequence(base, "heldout", 3)
     b = simulate_sequence(other, "heldout", 3)
     assert a is not None and b is not None
     assert a.recipe["generator"] == "scene3d"
     assert np.array_equal(a.voxels, b.voxels) and a.recipe == b.recipe
+
+
+def test_limited_bandwidth_changes_the_events_and_nothing_else_of_a_seed():
+    """``cutoff_hz`` draws each sequence's pixel bandwidth from a generator of its own: the scene,
+    motion, thresholds and window size of a seed stay, its events change."""
+    base = TrainDataConfig(**{**TINY["data"], "planar_fraction": 1.0})
+    slow = TrainDataConfig(**{**asdict(base), "cutoff_hz": [20.0, 40.0]})
+    a, b = simulate_sequence(base, "train", 0), simulate_sequence(slow, "train", 0)
+    assert a is not None and b is not None
+    assert a.recipe["event_camera"]["cutoff_hz"] == 0.0
+    assert 20.0 <= b.recipe["event_camera"]["cutoff_hz"] <= 40.0
+    cam_a, cam_b = dict(a.recipe["event_camera"]), dict(b.recipe["event_camera"])
+    del cam_a["cutoff_hz"], cam_b["cutoff_hz"]
+    assert cam_a == cam_b
+    assert {k: v for k, v in a.recipe.items() if k not in ("event_camera", "duration_s")} == {
+        k: v for k, v in b.recipe.items() if k not in ("event_camera", "duration_s")
+    }
+    assert not np.array_equal(a.voxels, b.voxels)
+    for bad in ([0.0, 10.0], [30.0, 20.0], [-1.0, -1.0]):
+        with pytest.raises(ValueError, match="cutoff_hz"):
+            TrainDataConfig(**{**asdict(base), "cutoff_hz": bad}).check()
 
 
 def test_target_power_derives_linear_targets_from_the_stored_log_radiance(tiny_set):

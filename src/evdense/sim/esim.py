@@ -12,6 +12,15 @@ Refractory period: a crossing that comes sooner than ``refractory_us`` after the
 tracking the log intensity (as in ESIM) instead of lagging behind it and releasing a burst of
 stale events when the refractory period ends.
 
+Photoreceptor bandwidth (``cutoff_hz`` > 0): a real pixel does not follow its log intensity
+instantly. Its front end is close to a first-order low-pass whose cut-off frequency grows with the
+photocurrent, so dim pixels lag and smear moving edges over time (the model v2e uses). Here every
+pixel's log intensity passes through ``tau dy/dt = L - y`` with ``tau = 1 / (2 pi f)`` and
+``f = cutoff_hz * clip(radiance / reference, cutoff_floor, 1)``, ``reference`` being the 99th
+percentile of the first render's radiance (the renderers' radiance unit is arbitrary). Between two
+renders L is linear in time, for which the filter has an exact solution; the events are then the
+threshold crossings of the filtered ``y`` instead of ``L``. At 0 (the default) nothing changes.
+
 Noise: background-activity events (a Poisson process per pixel) and hot pixels (a fixed random
 set of pixels firing at a high Poisson rate), both with random polarity. Noise events neither move
 the reference nor start a refractory period.
@@ -53,6 +62,13 @@ class EventCameraConfig:
     """Per-pixel thresholds are clipped below at this value, log-intensity units."""
     log_eps: float = 1e-3
     """Offset in L = log(radiance + log_eps), radiance units; limits noise in near-black regions."""
+    cutoff_hz: float = 0.0
+    """Photoreceptor cut-off frequency at full brightness (Hz): a first-order low-pass on log
+    intensity whose cut-off scales with the pixel's radiance (see the module docstring).
+    0 = unlimited bandwidth, no filter."""
+    cutoff_floor: float = 0.1
+    """Lowest cut-off as a fraction of ``cutoff_hz`` (reached at and below this fraction of the
+    reference radiance); only used when ``cutoff_hz`` > 0."""
     refractory_us: float = 100.0
     """Refractory period after an emitted event, microseconds (0 = none)."""
     noise_rate_hz: float = 0.1
@@ -97,6 +113,7 @@ class EventCameraConfig:
         nonneg = {
             "contrast_sigma": self.contrast_sigma,
             "refractory_us": self.refractory_us,
+            "cutoff_hz": self.cutoff_hz,
             "noise_rate_hz": self.noise_rate_hz,
             "hot_pixel_fraction": self.hot_pixel_fraction,
             "hot_pixel_rate_hz": self.hot_pixel_rate_hz,
@@ -111,6 +128,10 @@ class EventCameraConfig:
         if not 0 < self.step_percentile <= 100:
             raise ValueError(
                 f"simulator.event_camera.step_percentile must be in (0, 100], got {self.step_percentile}"
+            )
+        if not 0 < self.cutoff_floor <= 1:
+            raise ValueError(
+                f"simulator.event_camera.cutoff_floor must be in (0, 1], got {self.cutoff_floor}"
             )
         if self.min_step_us > self.max_step_us:
             raise ValueError("simulator.event_camera.min_step_us must not exceed max_step_us")
@@ -267,6 +288,32 @@ class EventSimulator:
         return Events(t_us[order], pix % self.width, pix // self.width, pol[order])
 
 
+class PhotoreceptorFilter:
+    """The pixels' bandwidth: a first-order low-pass on log intensity, cut-off rising with radiance.
+
+    Start it with the first log image; :meth:`advance` takes the next log image ``dt`` seconds
+    later and returns the filtered log image, exact for an input linear in time between the two.
+    """
+
+    def __init__(self, log_image: np.ndarray, config: EventCameraConfig) -> None:
+        self.config = config
+        self._L = np.asarray(log_image, dtype=np.float64).copy()
+        self._y = self._L.copy()
+        radiance = np.exp(self._L) - config.log_eps
+        self.reference = max(float(np.percentile(radiance, 99.0)), 1e-12)
+
+    def advance(self, log_image: np.ndarray, dt: float) -> np.ndarray:
+        c = self.config
+        L1 = np.asarray(log_image, dtype=np.float64)
+        rel = np.clip((np.exp(L1) - c.log_eps) / self.reference, c.cutoff_floor, 1.0)
+        tau = 1.0 / (2.0 * np.pi * c.cutoff_hz * rel)
+        slope_tau = (L1 - self._L) / dt * tau
+        # y(t) for tau y' = L(t) - y with L linear over the step: L1 - s tau + (y0 - L0 + s tau) e^(-dt/tau)
+        self._y = L1 - slope_tau + (self._y - self._L + slope_tau) * np.exp(-dt / tau)
+        self._L = L1
+        return self._y.copy()
+
+
 def merge_sorted(a: Events, b: Events) -> Events:
     """Merge two time-sorted batches into one time-sorted batch."""
     if len(a) == 0:
@@ -339,6 +386,12 @@ def simulate_event_stream(
     stats.renders += 1
     sim = EventSimulator(L.shape[0], L.shape[1], c, rng)
     sim.reset(L, t_start)
+    lowpass = PhotoreceptorFilter(L, c) if c.cutoff_hz > 0 else None
+
+    def sensed(L_next: np.ndarray, step: float) -> np.ndarray:
+        """What the pixels compare with their reference: ``L_next`` itself or its low-passed value."""
+        return L_next if lowpass is None else lowpass.advance(L_next, step)
+
     buf = _Buffer(sink, c.chunk_events)
     t = float(t_start)
     dt = min_step * 4
@@ -355,11 +408,15 @@ def simulate_event_stream(
             dt = max(dt * min(0.5, target / change), min_step)
         t_new = t + dt
         events = []
+        t_prev = t
         for j in range(1, c.step_subdivisions):
             tj = t + dt * j / c.step_subdivisions
-            events.append(sim.step(log_intensity(radiance_at(tj), c.log_eps), tj))
+            events.append(
+                sim.step(sensed(log_intensity(radiance_at(tj), c.log_eps), tj - t_prev), tj)
+            )
             stats.renders += 1
-        events.append(sim.step(L_new, t_new))
+            t_prev = tj
+        events.append(sim.step(sensed(L_new, t_new - t_prev), t_new))
         sig = Events.concatenate(events)  # sub-steps are consecutive, so already sorted
         noise = sim.noise(t, t_new)
         stats.signal_events += len(sig)

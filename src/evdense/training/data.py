@@ -111,6 +111,10 @@ class TrainDataConfig:
     """Range of the per-pixel threshold spread as a fraction of C (Gaussian sigma), drawn uniform."""
     refractory_us: list[float] = field(default_factory=lambda: [0.0, 1000.0])
     """Range of the refractory period, microseconds, drawn uniform."""
+    cutoff_hz: list[float] = field(default_factory=lambda: [0.0, 0.0])
+    """Range [lo, hi] of the pixels' cut-off frequency at full brightness (Hz, the event camera's
+    ``cutoff_hz``), drawn log-uniform per train/val sequence from a generator of its own (the
+    other draws of a seed stay as they are). [0, 0] leaves the pixels' bandwidth unlimited."""
     noise_rate_range: list[float] = field(default_factory=lambda: [0.01, 5.0])
     """Range of background-activity noise per pixel (Hz), drawn log-uniform."""
     hot_pixel_fraction_max: float = 1e-3
@@ -157,6 +161,11 @@ class TrainDataConfig:
         if any(not v >= 0 for v in w) or not sum(w) > 0:
             raise ValueError("train.data.planar_textures: weights must be >= 0 with a positive sum, "
                              f"not {self.planar_textures}")  # fmt: skip
+        lo, hi = self.cutoff_hz
+        if not (lo == hi == 0 or 0 < lo <= hi):
+            raise ValueError(
+                f"train.data.cutoff_hz must be [0, 0] or 0 < lo <= hi, not {self.cutoff_hz}"
+            )
         find_pictures(tuple(self.picture_dirs))  # a missing or empty folder fails before simulating
 
 
@@ -169,6 +178,7 @@ HELDOUT_RECIPE = {
     "target_percentiles": [0.5, 99.5],
     "max_duration_s": 8.0,
     "max_renders": 10**9,
+    "cutoff_hz": [0.0, 0.0],
 }
 """The held-out split's fixed recipe (independent of the training recipe, so that every model is
 scored on the same sequences): 3D scenes with the held-out textures, objects and motions."""
@@ -475,6 +485,8 @@ def simulate_sequence(conf: TrainDataConfig, split: str, seed: int) -> Sequence 
             return renderer.radiance(motion.pose(t))
 
         recipe_extra = {"generator": "scene3d", **info, "scene": spec, "motion": motion.to_dict()}
+    if conf.cutoff_hz[1] > 0:
+        cam.cutoff_hz = _loguniform(np.random.default_rng([seed, 1]), *conf.cutoff_hz)
     return run_sequence(conf, split, seed, rng, radiance_at, cam, n, recipe_extra)
 
 
