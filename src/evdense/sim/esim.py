@@ -303,6 +303,8 @@ class PhotoreceptorFilter:
         self.reference = max(float(np.percentile(radiance, 99.0)), 1e-12)
 
     def advance(self, log_image: np.ndarray, dt: float) -> np.ndarray:
+        """The filtered log image ``dt`` seconds after the last one; each pixel's cut-off is taken
+        at its radiance in ``log_image`` and held over the step."""
         c = self.config
         L1 = np.asarray(log_image, dtype=np.float64)
         rel = np.clip((np.exp(L1) - c.log_eps) / self.reference, c.cutoff_floor, 1.0)
