@@ -18,8 +18,9 @@ photocurrent, so dim pixels lag and smear moving edges over time (the model v2e 
 pixel's log intensity passes through ``tau dy/dt = L - y`` with ``tau = 1 / (2 pi f)`` and
 ``f = cutoff_hz * clip(radiance / reference, cutoff_floor, 1)``, ``reference`` being the 99th
 percentile of the first render's radiance (the renderers' radiance unit is arbitrary). Between two
-renders L is linear in time, for which the filter has an exact solution; the events are then the
-threshold crossings of the filtered ``y`` instead of ``L``. At 0 (the default) nothing changes.
+renders L is linear in time, for which the filter has an exact solution at each render; the events
+are then the threshold crossings of the filtered ``y`` instead of ``L``, their times interpolated
+linearly between renders as for ``L``. At 0 (the default) nothing changes.
 
 Noise: background-activity events (a Poisson process per pixel) and hot pixels (a fixed random
 set of pixels firing at a high Poisson rate), both with random polarity. Noise events neither move
