@@ -270,6 +270,16 @@ def test_textures_tile_and_mip_means():
     labels, values = dead_leaves_labels(64, 2, 20, 3.0, np.random.default_rng(0))
     assert labels.min() >= 0 and labels.max() < len(values)  # the torus is covered
     assert np.array_equal(img, values[labels])  # the same draw as the image
+    # disks wider than the torus (the planar mosaic's 300 px on 512 texels) wrap onto themselves:
+    # the torus is covered all the same, and the generator ends after the 400 batches of 512 disks
+    # it has always drawn there, so a seed's later draws (the mosaic's fills) stay as they were
+    rng = np.random.default_rng(0)
+    labels, values = dead_leaves_labels(32, 2, 40, 3.0, rng)
+    assert labels.min() >= 0 and len(values) == 400 * 512
+    after = np.random.default_rng(0)
+    for _ in range(400):
+        after.random(512), after.integers(0, 32, size=(512, 2)), after.random(512)
+    assert rng.random() == after.random()
     pyr = mip_pyramid(img)
     assert [p.shape for p in pyr] == [(64 >> k, 64 >> k) for k in range(7)]
     for p in pyr:

@@ -197,6 +197,15 @@ def dead_leaves_labels(
                 uncovered -= int(paint.sum())
         if uncovered == 0:
             break
+        if labels.min() >= 0:
+            # Covered, but the count missed it: a disk wider than the torus wraps onto itself and
+            # its texels were counted twice. The remaining batches would paint nothing; their
+            # numbers are still drawn, so the generator ends where it always has.
+            for _ in range(b + 1, 400):
+                rng.random(batch)
+                rng.integers(0, size, size=(batch, 2))
+                drawn.append(rng.random(batch).astype(np.float32))
+            break
     return labels, np.concatenate(drawn)
 
 
