@@ -16,11 +16,15 @@ from evdense.events.voxel import voxel_grid
 from evdense.recon.checkpoints import load_checkpoint, save_checkpoint
 from evdense.recon.inference import NetworkReconstructor
 from evdense.recon.postprocess import standardize_nonzero
+from evdense.sim.render import RenderConfig, Renderer
+from evdense.sim.scene import build_scene
 from evdense.training.data import (
     TrainDataConfig,
     generate_dataset,
     load_split,
     power_targets,
+    random_motion,
+    random_room_spec,
     random_scene_spec,
     simulate_sequence,
 )
@@ -135,7 +139,7 @@ def test_heldout_split_does_not_follow_the_training_recipe():
     base = TrainDataConfig(**TINY["data"])
     other = TrainDataConfig(**{**TINY["data"], "contrast_range": [0.5, 0.6], "planar_fraction": 1.0,
                                "noise_rate_range": [3.0, 4.0], "max_duration_s": 2.0,
-                               "cutoff_hz": [50.0, 100.0]})  # fmt: skip
+                               "cutoff_hz": [50.0, 100.0], "room_fraction": 1.0})  # fmt: skip
     a = simulate_sequence(base, "heldout", 3)
     b = simulate_sequence(other, "heldout", 3)
     assert a is not None and b is not None
@@ -162,6 +166,39 @@ def test_limited_bandwidth_changes_the_events_and_nothing_else_of_a_seed():
     for bad in ([0.0, 10.0], [30.0, 20.0], [-1.0, -1.0]):
         with pytest.raises(ValueError, match="cutoff_hz"):
             TrainDataConfig(**{**asdict(base), "cutoff_hz": bad}).check()
+
+
+def test_rooms_enclose_the_camera_and_leave_the_other_sequences_of_a_seed_as_they_were():
+    """``room_fraction`` turns a share of the sequences into rooms, drawn from a generator of its
+    own: the sequences that are not rooms are bit-identical to those of the same seeds without."""
+    base = TrainDataConfig(**{**TINY["data"], "planar_fraction": 0.5, "texture_size": 32})
+    rooms = TrainDataConfig(**{**asdict(base), "room_fraction": 0.5})
+    # at this fraction seed 0 draws a room and seed 4 a 3D scene (two cheap sequences of each kind)
+    made = {seed: simulate_sequence(rooms, "train", seed) for seed in (0, 4)}
+    kinds = {seed: bool(s.recipe.get("room")) for seed, s in made.items() if s is not None}
+    assert kinds == {0: True, 4: False}
+    for seed, is_room in kinds.items():
+        if is_room:
+            assert made[seed].recipe["generator"] == "scene3d"
+            assert made[seed].recipe["scene"]["objects"][0]["type"] == "room"
+        else:
+            plain = simulate_sequence(base, "train", seed)
+            assert plain is not None and np.array_equal(plain.voxels, made[seed].voxels)
+    # the room encloses the camera wherever its motion takes it: every ray hits a wall at 0.4 m or
+    # more (the walls stand 0.8 m or more away, the motion reaches a few tenths of a metre)
+    render = RenderConfig(camera={"width": 48, "height": 36, "fx": 40.0, "fy": 40.0,
+                                  "cx": 24.0, "cy": 18.0})  # fmt: skip
+    for seed in range(3):
+        rng = np.random.default_rng(seed)
+        spec = random_room_spec(rng, hdr=seed == 0, size=32)
+        scene = build_scene(spec, {"speed": 1.0, "dynamic_range": 10.0, "duration": 1.0,
+                                   "seed": seed}, render, None)  # fmt: skip
+        renderer, motion = Renderer(scene, supersample=1), random_motion(rng, "smooth")
+        for t in np.linspace(0.0, 3.0, 5):
+            out = renderer.render(motion.pose(float(t)))
+            assert np.all(out.triangle_ids >= 0) and out.depth.min() > 0.4
+    with pytest.raises(ValueError, match="room_fraction"):
+        TrainDataConfig(**{**asdict(base), "room_fraction": 1.5}).check()
 
 
 def test_target_power_derives_linear_targets_from_the_stored_log_radiance(tiny_set):

@@ -152,7 +152,18 @@ class TrainDataConfig:
     level log-uniform in [0.03, 0.8], high / low ratio log-uniform in [1.05, 3] (plain or faintly
     textured walls), instead of low 0.02-0.15 and high 0.55-1.0. At 0 no random draw is added."""
 
+    room_fraction: float = 0.0
+    """Fraction of train/val sequences that are rooms (:func:`random_room_spec`): the camera inside
+    a box of floor, ceiling and four walls at unrelated levels, most of them plain, turned so that
+    corners and floor come into view, with a few boxes; the others come from the planar generator
+    or the 3D scenes as before. Drawn per sequence from a generator of its own, so the sequences
+    that are not rooms are those of the same seed without rooms. 0 makes none."""
+
     def check(self) -> None:
+        if not 0.0 <= self.room_fraction <= 1.0:
+            raise ValueError(
+                f"train.data.room_fraction must lie in [0, 1], not {self.room_fraction}"
+            )
         unknown = sorted(set(self.planar_textures) - set(TEXTURE_KINDS))
         if unknown:
             raise ValueError(f"train.data.planar_textures: unknown kinds {unknown} "
@@ -179,6 +190,7 @@ HELDOUT_RECIPE = {
     "max_duration_s": 8.0,
     "max_renders": 10**9,
     "cutoff_hz": [0.0, 0.0],
+    "room_fraction": 0.0,
 }
 """The held-out split's fixed recipe (independent of the training recipe, so that every model is
 scored on the same sequences): 3D scenes with the held-out textures, objects and motions."""
@@ -304,6 +316,83 @@ def random_scene_spec(
     }  # fmt: skip
 
 
+ROOM_PLAIN_FRACTION = 0.6
+"""Share of a room's surfaces drawn plain or faintly textured (the low-contrast draw of
+:attr:`TrainDataConfig.low_contrast_fraction`); the others get the 3D scenes' textures."""
+
+
+def random_room_spec(rng: np.random.Generator, hdr: bool, size: int = 512) -> dict:
+    """A random room around a camera at the origin (train/val only; see ``random_scene_spec``).
+
+    A box 2.5-6 m wide, 3-7 m deep and 2.2-3.2 m high, seen from inside: the camera stands 0.8 m
+    or more from every wall (beyond the reach of :func:`random_motion`), 1.5 m or more from the
+    wall ahead, and the room is turned by up to 45 degrees of yaw and 30 of pitch, so that walls
+    meet in corners, floor and ceiling in the view. Each of the six surfaces has a material of its
+    own, plain with probability :data:`ROOM_PLAIN_FRACTION`; the directional shading gives the
+    surfaces of one material different levels. 0-3 textured boxes stand in front of the camera;
+    with ``hdr`` a light panel (a window) is set in the wall ahead.
+    """
+    width, depth, height = rng.uniform(2.5, 6.0), rng.uniform(3.0, 7.0), rng.uniform(2.2, 3.2)
+    ahead = rng.uniform(1.5, depth - 0.8)  # camera to the wall ahead
+    eye = rng.uniform(0.8, height - 0.6)  # camera above the floor
+    # room frame: x right, y ahead, z up; camera frame: x right, y down, z ahead
+    turn = Rotation.from_euler(
+        "yx", [rng.uniform(-45, 45), rng.uniform(-30, 30)], degrees=True
+    ) * Rotation.from_euler("x", 90, degrees=True)
+    centre = np.array([rng.uniform(-0.3, 0.3) * (width - 1.6), ahead - depth / 2, height / 2 - eye])
+    faces = ("right", "left", "back", "front", "top", "bottom")
+    materials: dict[str, Any] = {
+        f"room_{f}": {
+            "texture": _random_texture(rng, "train", size, ROOM_PLAIN_FRACTION),
+            "tile_m": float(rng.uniform(0.5, 3.0)),
+        }
+        for f in faces
+    }
+    objects: list[dict] = [
+        {"type": "room", "size": [float(width), float(depth), float(height)],
+         "center": turn.apply(centre).tolist(),
+         "rotation_deg": turn.as_euler("xyz", degrees=True).tolist(),
+         "face_materials": {f: f"room_{f}" for f in faces}}
+    ]  # fmt: skip
+    for i in range(int(rng.integers(0, 4))):
+        materials[f"obj{i}"] = {
+            "texture": _random_texture(rng, "train", size),
+            "tile_m": float(rng.uniform(0.3, 1.5)),
+        }
+        z = float(rng.uniform(0.9, max(1.0, ahead - 0.3)))
+        x, y = rng.uniform(-0.45, 0.45, 2) * z
+        s = float(rng.uniform(0.1, 0.3)) * z  # smaller than the 3D scenes': the walls lead
+        objects.append({"type": "box", "size": (s * rng.uniform(0.5, 1.5, 3)).tolist(),
+                        "center": [float(x), float(y), z],
+                        "rotation_deg": rng.uniform(-60, 60, 3).tolist(), "material": f"obj{i}"})  # fmt: skip
+    if hdr:
+        materials["light"] = {
+            "texture": {"type": "noise", "size": 128, "beta": 3.0, "low": 0.6, "high": 1.0,
+                        "seed": int(rng.integers(0, 2**31))},
+            "tile_m": 1.0, "radiance": 1.0, "light": True,
+        }  # fmt: skip
+        w = float(rng.uniform(0.2, 0.5)) * min(width, height)
+        at = centre + [
+            rng.uniform(-0.3, 0.3) * width,
+            depth / 2 - 0.02,
+            rng.uniform(-0.2, 0.2) * height,
+        ]
+        objects.append({"type": "plane", "center": turn.apply(at).tolist(),
+                        "size": [w, w * float(rng.uniform(0.5, 1.5))],
+                        "normal": turn.apply([0.0, -1.0, 0.0]).tolist(),
+                        "up": turn.apply([0.0, 0.0, 1.0]).tolist(), "material": "light"})  # fmt: skip
+    return {
+        "name": "train_room",
+        "duration": 1.0,
+        "shading": {"direction": rng.normal(0, 1, 3).tolist(), "ambient": float(rng.uniform(0.3, 0.8))},
+        "materials": materials,
+        "objects": objects,
+        "trajectory": {"type": "spline", "key_poses": [
+            {"position": [0, 0, 0], "look_at": [0, 0, 1]},
+            {"position": [0.1, 0, 0], "look_at": [0.1, 0, 1]}]},
+    }  # fmt: skip
+
+
 # ---------------------------------------------------------------------------------------------
 # Random bounded 6-DoF motion
 # ---------------------------------------------------------------------------------------------
@@ -413,14 +502,17 @@ def _event_camera(conf: TrainDataConfig, split: str, rng: np.random.Generator) -
 
 
 def _sequence_recipe(
-    conf: TrainDataConfig, split: str, rng: np.random.Generator
+    conf: TrainDataConfig, split: str, rng: np.random.Generator, room: bool = False
 ) -> tuple[dict, Motion, EventCameraConfig, int, dict[str, Any]]:
     if split == "heldout":
         kind = str(rng.choice(["fast", "shake", "hdr", "smooth"]))
     else:
         kind = "hdr" if rng.random() < conf.hdr_fraction else "smooth"
     hdr = kind == "hdr"
-    spec = random_scene_spec(rng, split, hdr, conf.texture_size, conf.low_contrast_fraction)
+    if room:
+        spec = random_room_spec(rng, hdr, conf.texture_size)
+    else:
+        spec = random_scene_spec(rng, split, hdr, conf.texture_size, conf.low_contrast_fraction)
     if split == "heldout":
         dyn = _loguniform(rng, 20.0, 100.0) if hdr else 1.0
     else:
@@ -429,6 +521,8 @@ def _sequence_recipe(
     cam = _event_camera(conf, split, rng)
     n, epp = _window_size(conf, split, rng)
     info = {"kind": kind, "dynamic_range": dyn, "events_per_pixel": epp, "events_per_window": n}
+    if room:
+        info["room"] = True
     return spec, motion, cam, n, info
 
 
@@ -464,10 +558,11 @@ def simulate_sequence(conf: TrainDataConfig, split: str, seed: int) -> Sequence 
     if split == "heldout":
         conf = heldout_config(conf)
     rng = np.random.default_rng(seed)
-    if split != "heldout" and rng.random() < conf.planar_fraction:
+    room = conf.room_fraction > 0 and np.random.default_rng([seed, 2]).random() < conf.room_fraction
+    if split != "heldout" and not room and rng.random() < conf.planar_fraction:
         radiance_at, cam, n, recipe_extra = _planar_recipe(conf, split, rng)
     else:
-        spec, motion, cam, n, info = _sequence_recipe(conf, split, rng)
+        spec, motion, cam, n, info = _sequence_recipe(conf, split, rng, room)
         render = RenderConfig(
             camera={"width": conf.width, "height": conf.height, "fx": conf.focal_px,
                     "fy": conf.focal_px, "cx": conf.width / 2, "cy": conf.height / 2}
