@@ -243,6 +243,30 @@ def _random_texture(
             "high": high}  # fmt: skip
 
 
+def _light_material(rng: np.random.Generator) -> dict:
+    """A light panel's material (radiance times the dataset's dynamic range, unshaded)."""
+    return {
+        "texture": {"type": "noise", "size": 128, "beta": 3.0, "low": 0.6, "high": 1.0,
+                    "seed": int(rng.integers(0, 2**31))},
+        "tile_m": 1.0, "radiance": 1.0, "light": True,
+    }  # fmt: skip
+
+
+def _scene_dict(name: str, rng: np.random.Generator, materials: dict, objects: list[dict]) -> dict:
+    """A scene spec of these materials and objects under a random directional shading."""
+    return {
+        "name": name,
+        "duration": 1.0,
+        "shading": {"direction": rng.normal(0, 1, 3).tolist(), "ambient": float(rng.uniform(0.3, 0.8))},
+        "materials": materials,
+        "objects": objects,
+        # unused (we pass our own poses), but a scene needs one
+        "trajectory": {"type": "spline", "key_poses": [
+            {"position": [0, 0, 0], "look_at": [0, 0, 1]},
+            {"position": [0.1, 0, 0], "look_at": [0.1, 0, 1]}]},
+    }  # fmt: skip
+
+
 def random_scene_spec(
     rng: np.random.Generator, split: str, hdr: bool, size: int = 512, low_contrast: float = 0.0
 ) -> dict:
@@ -291,11 +315,7 @@ def random_scene_spec(
         objects.append({"type": "plane", "center": [0.0, 1.0, depth / 2], "size": [14.0, 14.0],
                         "normal": [0.0, -1.0, 0.0], "up": [0.0, 0.0, 1.0], "material": "floor"})  # fmt: skip
     if hdr:
-        materials["light"] = {
-            "texture": {"type": "noise", "size": 128, "beta": 3.0, "low": 0.6, "high": 1.0,
-                        "seed": int(rng.integers(0, 2**31))},
-            "tile_m": 1.0, "radiance": 1.0, "light": True,
-        }  # fmt: skip
+        materials["light"] = _light_material(rng)
         c = tilt.apply(
             [float(rng.uniform(-0.4, 0.4)) * depth, float(rng.uniform(-0.3, 0.3)) * depth, 0]
         )
@@ -303,17 +323,7 @@ def random_scene_spec(
         objects.append({"type": "plane", "center": (c + [0, 0, depth - 0.02]).tolist(),
                         "size": [w, w * float(rng.uniform(0.5, 1.5))], "normal": normal.tolist(),
                         "up": up.tolist(), "material": "light"})  # fmt: skip
-    return {
-        "name": "train_scene",
-        "duration": 1.0,
-        "shading": {"direction": rng.normal(0, 1, 3).tolist(), "ambient": float(rng.uniform(0.3, 0.8))},
-        "materials": materials,
-        "objects": objects,
-        # unused (we pass our own poses), but a scene needs one
-        "trajectory": {"type": "spline", "key_poses": [
-            {"position": [0, 0, 0], "look_at": [0, 0, 1]},
-            {"position": [0.1, 0, 0], "look_at": [0.1, 0, 1]}]},
-    }  # fmt: skip
+    return _scene_dict("train_scene", rng, materials, objects)
 
 
 ROOM_PLAIN_FRACTION = 0.6
@@ -366,11 +376,7 @@ def random_room_spec(rng: np.random.Generator, hdr: bool, size: int = 512) -> di
                         "center": [float(x), float(y), z],
                         "rotation_deg": rng.uniform(-60, 60, 3).tolist(), "material": f"obj{i}"})  # fmt: skip
     if hdr:
-        materials["light"] = {
-            "texture": {"type": "noise", "size": 128, "beta": 3.0, "low": 0.6, "high": 1.0,
-                        "seed": int(rng.integers(0, 2**31))},
-            "tile_m": 1.0, "radiance": 1.0, "light": True,
-        }  # fmt: skip
+        materials["light"] = _light_material(rng)
         w = float(rng.uniform(0.2, 0.5)) * min(width, height)
         at = centre + [
             rng.uniform(-0.3, 0.3) * width,
@@ -381,16 +387,7 @@ def random_room_spec(rng: np.random.Generator, hdr: bool, size: int = 512) -> di
                         "size": [w, w * float(rng.uniform(0.5, 1.5))],
                         "normal": turn.apply([0.0, -1.0, 0.0]).tolist(),
                         "up": turn.apply([0.0, 0.0, 1.0]).tolist(), "material": "light"})  # fmt: skip
-    return {
-        "name": "train_room",
-        "duration": 1.0,
-        "shading": {"direction": rng.normal(0, 1, 3).tolist(), "ambient": float(rng.uniform(0.3, 0.8))},
-        "materials": materials,
-        "objects": objects,
-        "trajectory": {"type": "spline", "key_poses": [
-            {"position": [0, 0, 0], "look_at": [0, 0, 1]},
-            {"position": [0.1, 0, 0], "look_at": [0.1, 0, 1]}]},
-    }  # fmt: skip
+    return _scene_dict("train_room", rng, materials, objects)
 
 
 # ---------------------------------------------------------------------------------------------
