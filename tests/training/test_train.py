@@ -185,7 +185,7 @@ def test_rooms_enclose_the_camera_and_leave_the_other_sequences_of_a_seed_as_the
             plain = simulate_sequence(base, "train", seed)
             assert plain is not None and np.array_equal(plain.voxels, made[seed].voxels)
     # the room encloses the camera wherever its motion takes it: every ray hits a wall at 0.4 m or
-    # more (the walls stand 0.8 m or more away, the motion reaches a few tenths of a metre)
+    # more (the surfaces stand 0.6 m or more away, the motion reaches a few tenths of a metre)
     render = RenderConfig(camera={"width": 48, "height": 36, "fx": 40.0, "fy": 40.0,
                                   "cx": 24.0, "cy": 18.0})  # fmt: skip
     for seed in range(3):
