@@ -40,6 +40,7 @@ from evdense.training.losses import (
     temporal_consistency,
 )
 from evdense.training.train import (
+    CropStreams,
     SequenceSampler,
     TrainConfig,
     build_model,
@@ -419,6 +420,42 @@ def test_reverse_playback_gives_sequences_longer_than_simulated():
         )
 
 
+def test_crop_streams_go_on_with_their_windows_and_start_staggered():
+    rng = np.random.default_rng(0)
+    vox = rng.standard_normal((3, 5, 5, 8, 8)).astype(np.float32)
+    tgt = rng.random((3, 5, 8, 8)).astype(np.float32)
+    conf = TrainConfig.from_dict({**TINY, "crop_size": 8, "batch_size": 2, "sequence_length": 4,
+                                  "tbptt_length": 4, "stream_steps": 3,
+                                  "data": {**TINY["data"], "windows_per_sequence": 5}})  # fmt: skip
+    sampler = SequenceSampler(vox, tgt, conf)
+    streams = CropStreams(sampler)
+    gen = np.random.default_rng(1)
+    steps, seqs, views, pos = [], [], [], []
+    for _ in range(5):
+        steps.append(streams.batch(gen))
+        seqs.append(list(streams.seq))
+        views.append(list(streams.views))
+        pos.append(list(streams.pos))
+    # stream 0 first lives 1 step, stream 1 two; then each lives 3
+    fresh = [[bool(f) for f in step[2]] for step in steps]
+    assert fresh == [[True, True], [True, False], [False, True], [False, False], [True, False]]
+    # stream 0's life from step 1 to 3 is 12 consecutive windows of one playback path
+    x = torch.cat([steps[k][0][:, 0] for k in (1, 2, 3)])
+    y = torch.cat([steps[k][1][:, 0] for k in (1, 2, 3)])
+    assert seqs[1][0] == seqs[3][0] and views[1][0] == views[3][0]
+    win, tg, back = playback_path(5, (pos[1][0] - 4) % 8, 12)
+    ex, ey = sampler._crop(seqs[1][0], win, tg, back, views[1][0])
+    assert torch.equal(x, ex) and torch.equal(y, ey)
+    assert back.any() and not back.all()  # it turned at an end of the sequence
+    # a checkpoint's account of the streams continues them exactly
+    again = CropStreams(sampler)
+    again.load_state_dict(json.loads(json.dumps(streams.state_dict())))
+    a, b = streams.batch(np.random.default_rng(2)), again.batch(np.random.default_rng(2))
+    assert all(torch.equal(u, v) for u, v in zip(a, b, strict=True))
+    with pytest.raises(ValueError, match="stream_steps"):
+        TrainConfig.from_dict({**TINY, "stream_steps": 0}).check()
+
+
 @pytest.mark.slow
 def test_short_training_lowers_validation_loss(tiny_set, tmp_path):
     conf, path = tiny_set
@@ -456,6 +493,35 @@ def test_resume_gives_the_uninterrupted_state(tiny_set, tmp_path):
     sa, sb = a["optimizer"]["state"], b["optimizer"]["state"]
     assert all(torch.equal(sa[i]["exp_avg"], sb[i]["exp_avg"]) for i in sa)
     assert a["rng"] == b["rng"]
+
+
+@pytest.mark.slow
+def test_streams_carry_the_state_between_steps_and_resume_exactly(tiny_set, tmp_path):
+    _, path = tiny_set
+    conf = TrainConfig.from_dict(
+        {**TINY, "max_steps": 6, "checkpoint_every": 3, "val_every": 100, "stream_steps": 4}
+    )
+    straight = tmp_path / "straight"
+    train_model(conf, path, straight, straight / "w.pt")
+    split = tmp_path / "split"
+    train_model(conf, path, split, split / "w.pt", max_steps=3)
+    mid = torch.load(latest_checkpoint(split), weights_only=True)
+    # after 3 steps stream 3 (first life 4 steps) is still on its first crop: its state is
+    # the network's after 24 windows, not zero
+    assert json.loads(mid["streams"])["left"][3] == 1
+    assert all(s[3].abs().sum() > 0 for s in mid["stream_states"])
+    train_model(conf, path, split, split / "w.pt")
+    a = torch.load(latest_checkpoint(straight), weights_only=True)
+    b = torch.load(latest_checkpoint(split), weights_only=True)
+    for k in a["model"]:
+        assert torch.equal(a["model"][k], b["model"][k]), k
+    assert a["streams"] == b["streams"] and a["rng"] == b["rng"]
+    pairs = zip(a["stream_states"], b["stream_states"], strict=True)
+    assert all(torch.equal(u, v) for u, v in pairs)
+    plain = tmp_path / "plain"
+    train_model(TrainConfig.from_dict({**TINY, "max_steps": 3}), path, plain, plain / "w.pt")
+    with pytest.raises(ValueError, match="stream_steps"):  # a checkpoint made without streams
+        train_model(conf, path, plain, plain / "w.pt")
 
 
 def test_weight_average_moves_towards_the_trained_weights():

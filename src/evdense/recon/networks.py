@@ -572,6 +572,22 @@ def build_network(arch: str, **hparams: Any) -> ReconstructionNet:
     return NETWORKS[arch](**hparams)
 
 
+def zero_states(states: States | None, rows: Tensor) -> States | None:
+    """``states`` with the batch rows where the bool ``rows`` ``(N,)`` is true set to zero (those
+    sequences start anew); None when there is no state or every row starts anew."""
+    if states is None or bool(rows.all()):
+        return None
+    keep = (~rows).to(dtype=torch.float32).view(-1, 1, 1, 1)
+
+    def cut(t: Tensor) -> Tensor:
+        return t * keep.to(t.dtype)
+
+    return [
+        None if s is None else tuple(cut(t) for t in s) if isinstance(s, tuple) else cut(s)
+        for s in states
+    ]
+
+
 def detach_states(states: States | None) -> States | None:
     """A copy of the recurrent state cut from the autograd graph (for truncated BPTT)."""
     if states is None:

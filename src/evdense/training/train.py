@@ -39,7 +39,13 @@ from evdense.formats.files import write_atomic, write_text_atomic
 from evdense.log import get_logger
 from evdense.recon.checkpoints import infer_architecture, load_checkpoint, save_checkpoint
 from evdense.recon.inference import pick_device
-from evdense.recon.networks import ReconstructionNet, build_network, detach_states
+from evdense.recon.networks import (
+    ReconstructionNet,
+    States,
+    build_network,
+    detach_states,
+    zero_states,
+)
 from evdense.training.data import TrainDataConfig, load_split, read_config, read_seed
 from evdense.training.losses import LossWeights, reconstruction_loss, ssim
 
@@ -104,6 +110,13 @@ class TrainConfig:
     then backward in time (each window's voxel bins reversed and polarities negated, the target
     one window earlier), then forward again, and so on, so the recurrent state learns to hold a
     scene over many more windows than were simulated."""
+    stream_steps: int = 1
+    """Steps a crop lives for. Above 1, each of the ``batch_size`` crops goes on with its sequence
+    (played forward and backward, as with ``reverse_playback``) for this many steps, its recurrent
+    state carried (detached) from one step to the next, so the loss also sees states up to
+    ``stream_steps x sequence_length`` windows old, at the cost of ``sequence_length``; the crops
+    are staggered, so each batch mixes young and old states. 1 = a fresh crop from a zero state
+    every step."""
     voxel_clip: float = 3.0
     """Cap on ``|voxel|`` before the input normalisation, as ``reconstruct.voxel_clip`` at inference (0 = none)."""
     max_steps: int = 4000
@@ -202,6 +215,8 @@ class TrainConfig:
         if self.sequence_length > self.data.windows_per_sequence and not self.reverse_playback:
             raise ValueError("train.sequence_length exceeds train.data.windows_per_sequence "
                              "(set train.reverse_playback to play sequences back and forth)")  # fmt: skip
+        if self.stream_steps < 1:
+            raise ValueError(f"train.stream_steps must be at least 1, not {self.stream_steps}")
         if self.crop_size > min(self.data.width, self.data.height):
             raise ValueError("train.crop_size exceeds the simulated camera size")
         if not 0.0 <= self.target_power <= 3.0:
@@ -339,10 +354,46 @@ class SequenceSampler:
         self.targets = torch.from_numpy(np.asarray(targets, dtype=np.float16))  # (S, W, H, Wd)
         self.conf = conf
 
+    def _draw_view(self, rng: np.random.Generator) -> tuple[int, int, bool, bool, int]:
+        """A crop's corner and augmentation: ``(y0, x0, flip, invert, quarter turns)``."""
+        c = self.conf.crop_size
+        _, _, _, h, w = self.voxels.shape
+        y0 = int(rng.integers(0, h - c + 1))
+        x0 = int(rng.integers(0, w - c + 1))
+        flip, invert = rng.random(2) < 0.5
+        q = 0
+        if self.conf.augment and self.conf.augment_rotations:
+            q = int(rng.integers(4))
+        return y0, x0, bool(flip), bool(invert), q
+
+    def _crop(
+        self,
+        s: int,
+        win: slice | torch.Tensor,
+        tgt: slice | torch.Tensor,
+        back: torch.Tensor | None,
+        view: tuple[int, int, bool, bool, int],
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """Voxels ``(L, B, c, c)`` and targets ``(L, 1, c, c)`` of sequence ``s``'s windows ``win``
+        (targets ``tgt``, those in ``back`` played backward) seen through ``view``."""
+        c = self.conf.crop_size
+        y0, x0, flip, invert, q = view
+        v = self.voxels[s, win, :, y0 : y0 + c, x0 : x0 + c].float()
+        if back is not None:
+            v[back] = -v[back].flip(1)
+        t = self.targets[s, tgt, y0 : y0 + c, x0 : x0 + c].float()
+        if self.conf.augment and flip:
+            v, t = v.flip(-1), t.flip(-1)
+        if self.conf.augment and invert:
+            v, t = -v, 1.0 - t
+        if q:
+            v, t = v.rot90(q, (-2, -1)), t.rot90(q, (-2, -1))
+        return v, t[:, None]
+
     def batch(self, rng: np.random.Generator) -> tuple[torch.Tensor, torch.Tensor]:
         """Voxels ``(L, N, B, c, c)`` and targets ``(L, N, 1, c, c)`` float32 for one step."""
-        c, L = self.conf.crop_size, self.conf.sequence_length
-        s_all, w_all, _, h, w = self.voxels.shape
+        L = self.conf.sequence_length
+        s_all, w_all = self.voxels.shape[:2]
         xs, ys = [], []
         for _ in range(self.conf.batch_size):
             s = int(rng.integers(s_all))
@@ -352,24 +403,68 @@ class SequenceSampler:
                 back = None
             else:
                 win, tgt, back = playback_path(w_all, int(rng.integers(0, 2 * (w_all - 1))), L)
-            y0 = int(rng.integers(0, h - c + 1))
-            x0 = int(rng.integers(0, w - c + 1))
-            flip, invert = rng.random(2) < 0.5
-            v = self.voxels[s, win, :, y0 : y0 + c, x0 : x0 + c].float()
-            if back is not None:
-                v[back] = -v[back].flip(1)
-            t = self.targets[s, tgt, y0 : y0 + c, x0 : x0 + c].float()
-            if self.conf.augment and flip:
-                v, t = v.flip(-1), t.flip(-1)
-            if self.conf.augment and invert:
-                v, t = -v, 1.0 - t
-            if self.conf.augment and self.conf.augment_rotations:
-                q = int(rng.integers(4))
-                if q:
-                    v, t = v.rot90(q, (-2, -1)), t.rot90(q, (-2, -1))
+            v, t = self._crop(s, win, tgt, back, self._draw_view(rng))
             xs.append(v)
-            ys.append(t[:, None])
+            ys.append(t)
         return torch.stack(xs, 1).contiguous(), torch.stack(ys, 1).contiguous()
+
+
+class CropStreams:
+    """``batch_size`` crops that each live ``train.stream_steps`` steps (``stream_steps`` > 1).
+
+    A stream is a sequence, a playback position and a view (corner and augmentation). Each step
+    it gives its next ``sequence_length`` windows, played forward and backward through the
+    simulated ones (:func:`playback_path`), and the caller carries its recurrent state over, so
+    the loss sees states up to ``stream_steps x sequence_length`` windows old at the cost of
+    ``sequence_length``. Streams start staggered (stream ``i`` first lives
+    ``1 + i * stream_steps // batch_size`` steps), so every batch mixes young and old states.
+    """
+
+    def __init__(self, sampler: SequenceSampler) -> None:
+        self.sampler = sampler
+        n, k = sampler.conf.batch_size, sampler.conf.stream_steps
+        # per stream: sequence, cycle position, steps left, view; left 0 = draw anew
+        self.seq = [0] * n
+        self.pos = [0] * n
+        self.left = [0] * n
+        self.views: list[tuple[int, int, bool, bool, int]] = [(0, 0, False, False, 0)] * n
+        self.first_life = [1 + i * k // n for i in range(n)]
+
+    def state_dict(self) -> dict[str, Any]:
+        """What a checkpoint keeps to continue the streams exactly."""
+        return {"seq": self.seq, "pos": self.pos, "left": self.left, "views": self.views,
+                "first_life": self.first_life}  # fmt: skip
+
+    def load_state_dict(self, d: dict[str, Any]) -> None:
+        self.seq, self.pos, self.left = list(d["seq"]), list(d["pos"]), list(d["left"])
+        self.views = [tuple(v) for v in d["views"]]  # type: ignore[misc]
+        self.first_life = list(d["first_life"])
+
+    def batch(self, rng: np.random.Generator) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Voxels ``(L, N, B, c, c)``, targets ``(L, N, 1, c, c)`` and a bool ``(N,)``: the streams
+        that start this step (their state must start from zero)."""
+        sp = self.sampler
+        L = sp.conf.sequence_length
+        s_all, w_all = sp.voxels.shape[:2]
+        period = 2 * (w_all - 1)
+        fresh = torch.zeros(len(self.seq), dtype=torch.bool)
+        xs, ys = [], []
+        for i in range(len(self.seq)):
+            if self.left[i] == 0:
+                self.seq[i] = int(rng.integers(s_all))
+                self.pos[i] = int(rng.integers(0, period))
+                self.views[i] = sp._draw_view(rng)
+                life = self.first_life[i]
+                self.left[i] = life if life else sp.conf.stream_steps
+                self.first_life[i] = 0
+                fresh[i] = True
+            win, tgt, back = playback_path(w_all, self.pos[i], L)
+            v, t = sp._crop(self.seq[i], win, tgt, back, self.views[i])
+            self.pos[i] = (self.pos[i] + L) % period
+            self.left[i] -= 1
+            xs.append(v)
+            ys.append(t)
+        return torch.stack(xs, 1).contiguous(), torch.stack(ys, 1).contiguous(), fresh
 
 
 # ---------------------------------------------------------------------------------------------
@@ -509,11 +604,13 @@ def _train_step(
     y: torch.Tensor,
     conf: TrainConfig,
     weights: LossWeights,
-) -> list[dict[str, float]]:
+    states: States | None = None,
+) -> tuple[list[dict[str, float]], States | None]:
     """One step on a batch (voxels ``x`` ``(L, N, B, c, c)``, targets ``y``): the network runs
-    from a zero state over the ``L`` windows, one optimizer update per chunk of ``tbptt_length``
-    windows, the state detached between chunks. Returns each chunk's loss terms."""
-    states, out = None, []
+    from ``states`` (None: zeros) over the ``L`` windows, one optimizer update per chunk of
+    ``tbptt_length`` windows, the state detached between chunks. Returns each chunk's loss terms
+    and the detached state after the last window."""
+    out = []
     for c0 in range(0, conf.sequence_length, conf.tbptt_length):
         preds = []
         for k in range(c0, c0 + conf.tbptt_length):
@@ -529,7 +626,7 @@ def _train_step(
         opt.step()
         states = detach_states(states)
         out.append(terms)
-    return out
+    return out, states
 
 
 @torch.no_grad()
@@ -583,6 +680,8 @@ def train_model(
         log.info("training sequences: %s", " + ".join(str(len(v)) for v, _ in parts))
         del parts
     train = SequenceSampler(t_vox, t_tgt, conf)
+    streams = CropStreams(train) if conf.stream_steps > 1 else None
+    stream_states: States | None = None
     del t_vox, t_tgt
     v_vox, v_tgt = load_split(data_path, "val", tone)
     v_vox = normalize_windows(v_vox, conf.voxel_clip).to(dev)
@@ -612,6 +711,14 @@ def train_model(
         rng.bit_generator.state = json.loads(state["rng"])
         step, best_loss, best_step = state["step"], state["best_loss"], state["best_step"]
         best_val, spent = json.loads(state["best_val"]), state["train_seconds"]
+        if streams is not None:
+            if "streams" not in state:
+                raise ValueError(f"{ckpt}: made without train.stream_steps; resume it without it")
+            streams.load_state_dict(json.loads(state["streams"]))
+            stream_states = [
+                tuple(t.to(dev) for t in s) if isinstance(s, list) else s.to(dev)
+                for s in state["stream_states"]
+            ] or None
         log.info("resumed from %s (step %d)", ckpt, step)
         if history.is_file():  # drop lines written after that checkpoint
             lines = [ln for ln in history.read_text().splitlines() if ln.strip()]
@@ -652,6 +759,17 @@ def train_model(
                 "best_step": best_step,
                 "best_val": json.dumps(best_val),
                 "train_seconds": spent,
+                **(
+                    {}
+                    if streams is None
+                    else {
+                        "streams": json.dumps(streams.state_dict()),
+                        "stream_states": [
+                            [t.cpu() for t in s] if isinstance(s, tuple) else s.cpu()
+                            for s in stream_states or []
+                        ],
+                    }
+                ),
             },
             conf.keep_checkpoints,
         )
@@ -668,9 +786,17 @@ def train_model(
         lr = _lr_at(step, conf, spent)
         for g in opt.param_groups:
             g["lr"] = lr
-        x, y = train.batch(rng)
+        if streams is None:
+            x, y = train.batch(rng)
+            start = None
+        else:  # each stream goes on from its state; those that start anew from zeros
+            x, y, fresh = streams.batch(rng)
+            start = zero_states(stream_states, fresh.to(dev))
         x, y = x.to(dev, non_blocking=True), y.to(dev, non_blocking=True)
-        for terms in _train_step(net, opt, x, y, conf, weights):
+        terms_list, end = _train_step(net, opt, x, y, conf, weights, start)
+        if streams is not None:
+            stream_states = end
+        for terms in terms_list:
             for key, v in terms.items():
                 running[key] = running.get(key, 0.0) + v
         if ema is not None:
