@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 from dataclasses import asdict
+from typing import Any
 
 import h5py
 import numpy as np
@@ -474,20 +475,28 @@ def test_short_training_lowers_validation_loss(tiny_set, tmp_path):
     assert any("val" in json.loads(ln) for ln in lines)
 
 
-@pytest.mark.slow
-def test_resume_gives_the_uninterrupted_state(tiny_set, tmp_path):
-    conf, path = tiny_set
-    conf = TrainConfig.from_dict({**TINY, "max_steps": 6, "checkpoint_every": 3, "val_every": 100})
-    straight = tmp_path / "straight"
+def _train_straight_and_split(path, tmp_path, **keys: Any) -> tuple[TrainConfig, dict, dict, dict]:
+    """Train TINY with ``keys`` for 6 steps (checkpoints every 3) in one go
+    (``tmp_path/straight``) and stopped after 3 steps and resumed (``tmp_path/split``): the
+    config, the last checkpoints of both, and the split run's at its stop."""
+    conf = TrainConfig.from_dict(
+        {**TINY, "max_steps": 6, "checkpoint_every": 3, "val_every": 100, **keys}
+    )
+    straight, split = tmp_path / "straight", tmp_path / "split"
     train_model(conf, path, straight, straight / "w.pt")
-    split = tmp_path / "split"
     first = train_model(conf, path, split, split / "w.pt", max_steps=3)
     assert first.step == 3 and latest_checkpoint(split).name == "step_0000003.pt"
-    second = train_model(conf, path, split, split / "w.pt")
-    assert second.step == 6
+    mid = torch.load(latest_checkpoint(split), weights_only=True)
+    assert train_model(conf, path, split, split / "w.pt").step == 6
     a = torch.load(latest_checkpoint(straight), weights_only=True)
     b = torch.load(latest_checkpoint(split), weights_only=True)
     assert a["step"] == b["step"] == 6
+    return conf, a, b, mid
+
+
+@pytest.mark.slow
+def test_resume_gives_the_uninterrupted_state(tiny_set, tmp_path):
+    _, a, b, _ = _train_straight_and_split(tiny_set[1], tmp_path)
     for k in a["model"]:
         assert torch.equal(a["model"][k], b["model"][k]), k
     sa, sb = a["optimizer"]["state"], b["optimizer"]["state"]
@@ -497,22 +506,12 @@ def test_resume_gives_the_uninterrupted_state(tiny_set, tmp_path):
 
 @pytest.mark.slow
 def test_streams_carry_the_state_between_steps_and_resume_exactly(tiny_set, tmp_path):
-    _, path = tiny_set
-    conf = TrainConfig.from_dict(
-        {**TINY, "max_steps": 6, "checkpoint_every": 3, "val_every": 100, "stream_steps": 4}
-    )
-    straight = tmp_path / "straight"
-    train_model(conf, path, straight, straight / "w.pt")
-    split = tmp_path / "split"
-    train_model(conf, path, split, split / "w.pt", max_steps=3)
-    mid = torch.load(latest_checkpoint(split), weights_only=True)
+    path = tiny_set[1]
+    conf, a, b, mid = _train_straight_and_split(path, tmp_path, stream_steps=4)
     # after 3 steps stream 3 (first life 4 steps) is still on its first crop: its state is
     # the network's after 24 windows, not zero
     assert json.loads(mid["streams"])["left"][3] == 1
     assert all(s[3].abs().sum() > 0 for s in mid["stream_states"])
-    train_model(conf, path, split, split / "w.pt")
-    a = torch.load(latest_checkpoint(straight), weights_only=True)
-    b = torch.load(latest_checkpoint(split), weights_only=True)
     for k in a["model"]:
         assert torch.equal(a["model"][k], b["model"][k]), k
     assert a["streams"] == b["streams"] and a["rng"] == b["rng"]
@@ -543,17 +542,9 @@ def test_weight_average_moves_towards_the_trained_weights():
 
 @pytest.mark.slow
 def test_weight_average_is_saved_and_resumes(tiny_set, tmp_path):
-    _, path = tiny_set
-    conf = TrainConfig.from_dict(
-        {**TINY, "max_steps": 6, "checkpoint_every": 3, "val_every": 6, "ema_decay": 0.9}
-    )
+    path = tiny_set[1]
+    conf, a, b, _ = _train_straight_and_split(path, tmp_path, val_every=6, ema_decay=0.9)
     straight = tmp_path / "straight"
-    train_model(conf, path, straight, straight / "w.pt")
-    split = tmp_path / "split"
-    train_model(conf, path, split, split / "w.pt", max_steps=3)
-    train_model(conf, path, split, split / "w.pt")
-    a = torch.load(latest_checkpoint(straight), weights_only=True)
-    b = torch.load(latest_checkpoint(split), weights_only=True)
     saved = load_checkpoint(straight / "w.pt").net.state_dict()
     for k in a["ema"]:
         assert torch.equal(a["ema"][k], b["ema"][k]), k
