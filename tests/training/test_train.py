@@ -16,6 +16,7 @@ from skimage.metrics import structural_similarity
 from evdense.events.voxel import voxel_grid
 from evdense.recon.checkpoints import load_checkpoint, save_checkpoint
 from evdense.recon.inference import NetworkReconstructor
+from evdense.recon.networks import zero_states
 from evdense.recon.postprocess import standardize_nonzero
 from evdense.sim.render import RenderConfig, Renderer
 from evdense.sim.scene import build_scene
@@ -455,6 +456,15 @@ def test_crop_streams_go_on_with_their_windows_and_start_staggered():
     assert all(torch.equal(u, v) for u, v in zip(a, b, strict=True))
     with pytest.raises(ValueError, match="stream_steps"):
         TrainConfig.from_dict({**TINY, "stream_steps": 0}).check()
+    # the rows of the streams that start anew lose their state, a GRU's or an LSTM's alike
+    h, c = torch.ones(2, 3, 4, 4), torch.full((2, 3, 4, 4), 2.0)
+    cut = zero_states([h, (h, c), None], torch.tensor([True, False]))
+    assert cut is not None and cut[2] is None
+    for t, v in ((cut[0], 1.0), (cut[1][0], 1.0), (cut[1][1], 2.0)):
+        assert torch.equal(t[0], torch.zeros(3, 4, 4)) and torch.equal(
+            t[1], torch.full((3, 4, 4), v)
+        )
+    assert zero_states([h], torch.tensor([True, True])) is None
 
 
 @pytest.mark.slow
@@ -584,9 +594,13 @@ def test_the_e2vid_class_network_trains_and_loads_as_what_it_is(tiny_set, tmp_pa
     conf, path = tiny_set
     conf = TrainConfig.from_dict(
         {**TINY, "arch": "e2vid", "base_channels": 4, "num_encoders": 2, "max_steps": 4,
-         "val_every": 4, "checkpoint_every": 4}
+         "val_every": 4, "checkpoint_every": 2, "stream_steps": 2}
     )  # fmt: skip
-    train_model(conf, path, tmp_path / "run", tmp_path / "w.pt")
+    train_model(conf, path, tmp_path / "run", tmp_path / "w.pt", max_steps=2)
+    # its streams keep the state of each of its 2 recurrent encoders, at their resolutions
+    mid = torch.load(latest_checkpoint(tmp_path / "run"), weights_only=True)
+    assert [tuple(t.shape) for t in mid["stream_states"]] == [(4, 8, 16, 16), (4, 16, 8, 8)]
+    assert train_model(conf, path, tmp_path / "run", tmp_path / "w.pt").step == 4
     loaded = load_checkpoint(tmp_path / "w.pt")
     assert loaded.arch == "e2vid"
     assert loaded.hparams["num_encoders"] == 2 and loaded.hparams["norm"] == "none"

@@ -715,10 +715,8 @@ def train_model(
             if "streams" not in state:
                 raise ValueError(f"{ckpt}: made without train.stream_steps; resume it without it")
             streams.load_state_dict(json.loads(state["streams"]))
-            stream_states = [
-                tuple(t.to(dev) for t in s) if isinstance(s, list) else s.to(dev)
-                for s in state["stream_states"]
-            ] or None
+            # trained networks are GRU-recurrent: one tensor per recurrent layer
+            stream_states = [t.to(dev) for t in state["stream_states"]] or None
         log.info("resumed from %s (step %d)", ckpt, step)
         if history.is_file():  # drop lines written after that checkpoint
             lines = [ln for ln in history.read_text().splitlines() if ln.strip()]
@@ -764,10 +762,7 @@ def train_model(
                     if streams is None
                     else {
                         "streams": json.dumps(streams.state_dict()),
-                        "stream_states": [
-                            [t.cpu() for t in s] if isinstance(s, tuple) else s.cpu()
-                            for s in stream_states or []
-                        ],
+                        "stream_states": [t.cpu() for t in stream_states or []],
                     }
                 ),
             },
