@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import copy
 import json
 from dataclasses import asdict
 from typing import Any
@@ -45,6 +46,7 @@ from evdense.training.train import (
     CropStreams,
     SequenceSampler,
     TrainConfig,
+    _train_step,
     build_model,
     export_state_weights,
     latest_checkpoint,
@@ -512,6 +514,28 @@ def test_resume_gives_the_uninterrupted_state(tiny_set, tmp_path):
     sa, sb = a["optimizer"]["state"], b["optimizer"]["state"]
     assert all(torch.equal(sa[i]["exp_avg"], sb[i]["exp_avg"]) for i in sa)
     assert a["rng"] == b["rng"]
+
+
+def test_burn_in_windows_run_before_the_crop_without_loss(tiny_set, tmp_path):
+    conf = TrainConfig.from_dict({**TINY, "burn_in_windows": 6, "max_steps": 2})
+    sampler = SequenceSampler(*load_split(tiny_set[1], "train"), conf)
+    x, y = sampler.batch(np.random.default_rng(0))
+    assert x.shape[0] == y.shape[0] == 14  # 6 + 8 windows: past the 10 simulated, played back
+    net = build_model(conf)
+    twin = copy.deepcopy(net)
+    opt = torch.optim.Adam(twin.parameters(), lr=1e-3)
+    with_burn, _ = _train_step(twin, opt, x, y, conf, conf.loss_weights())
+    states = None  # the same loss windows from the state the burn-in leaves
+    with torch.no_grad():
+        for k in range(6):
+            _, states = net(x[k], states)
+    plain = TrainConfig.from_dict({**TINY, "max_steps": 2})
+    opt = torch.optim.Adam(net.parameters(), lr=1e-3)
+    after, _ = _train_step(net, opt, x[6:], y[6:], plain, plain.loss_weights(), states)
+    assert [round(t["loss"], 5) for t in with_burn] == [round(t["loss"], 5) for t in after]
+    assert train_model(conf, tiny_set[1], tmp_path / "run", tmp_path / "w.pt").step == 2
+    with pytest.raises(ValueError, match="burn_in_windows"):
+        TrainConfig.from_dict({**TINY, "burn_in_windows": 4, "stream_steps": 2}).check()
 
 
 @pytest.mark.slow

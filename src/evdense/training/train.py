@@ -117,6 +117,11 @@ class TrainConfig:
     ``stream_steps x sequence_length`` windows old, at the cost of ``sequence_length``; the crops
     are staggered, so each batch mixes young and old states. 1 = a fresh crop from a zero state
     every step."""
+    burn_in_windows: int = 0
+    """Windows each crop runs before its ``sequence_length``, without gradient, from a zero state
+    and with the weights being trained (played forward and backward when the crop runs past its
+    sequence, as with ``reverse_playback``), so the loss sees states that many windows older,
+    computed by the current weights; costs a forward pass per window (0 = none)."""
     voxel_clip: float = 3.0
     """Cap on ``|voxel|`` before the input normalisation, as ``reconstruct.voxel_clip`` at inference (0 = none)."""
     max_steps: int = 4000
@@ -217,6 +222,10 @@ class TrainConfig:
                              "(set train.reverse_playback to play sequences back and forth)")  # fmt: skip
         if self.stream_steps < 1:
             raise ValueError(f"train.stream_steps must be at least 1, not {self.stream_steps}")
+        if self.burn_in_windows < 0 or (self.burn_in_windows and self.stream_steps > 1):
+            raise ValueError(
+                "train.burn_in_windows must be >= 0, and 0 with train.stream_steps > 1"
+            )
         if self.crop_size > min(self.data.width, self.data.height):
             raise ValueError("train.crop_size exceeds the simulated camera size")
         if not 0.0 <= self.target_power <= 3.0:
@@ -391,8 +400,9 @@ class SequenceSampler:
         return v, t[:, None]
 
     def batch(self, rng: np.random.Generator) -> tuple[torch.Tensor, torch.Tensor]:
-        """Voxels ``(L, N, B, c, c)`` and targets ``(L, N, 1, c, c)`` float32 for one step."""
-        L = self.conf.sequence_length
+        """Voxels ``(L, N, B, c, c)`` and targets ``(L, N, 1, c, c)`` float32 for one step
+        (``L`` = ``burn_in_windows + sequence_length``)."""
+        L = self.conf.burn_in_windows + self.conf.sequence_length
         s_all, w_all = self.voxels.shape[:2]
         xs, ys = [], []
         for _ in range(self.conf.batch_size):
@@ -609,9 +619,15 @@ def _train_step(
     """One step on a batch (voxels ``x`` ``(L, N, B, c, c)``, targets ``y``): the network runs
     from ``states`` (None: zeros) over the ``L`` windows, one optimizer update per chunk of
     ``tbptt_length`` windows, the state detached between chunks. Returns each chunk's loss terms
-    and the detached state after the last window."""
+    and the detached state after the last window. The first ``conf.burn_in_windows`` windows
+    run without gradient and without loss."""
     out = []
-    for c0 in range(0, conf.sequence_length, conf.tbptt_length):
+    b = conf.burn_in_windows
+    if b:
+        with torch.no_grad():
+            for k in range(b):
+                _, states = net(x[k].contiguous(memory_format=torch.channels_last), states)
+    for c0 in range(b, b + conf.sequence_length, conf.tbptt_length):
         preds = []
         for k in range(c0, c0 + conf.tbptt_length):
             img, states = net(x[k].contiguous(memory_format=torch.channels_last), states)
