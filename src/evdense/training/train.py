@@ -6,6 +6,9 @@ zero state over them in chunks of ``tbptt_length`` windows and makes one optimiz
 chunk, the recurrent state detached between chunks (truncated backpropagation through time).
 With ``reverse_playback`` a crop may run longer than its simulated sequence: the windows play
 forward, then backward in time, and so on (:func:`playback_path`).
+With ``burn_in_windows`` each crop first runs that many windows without gradient; with
+``stream_steps`` a crop lives several steps, its state carried from one to the next
+(:class:`CropStreams`).
 
 Inputs are the raw voxel grids with FireNet's input normalisation (non-zero entries of each whole
 window standardised to mean 0, std 1, computed over the full frame before cropping, as at
