@@ -448,7 +448,7 @@ def test_crop_streams_go_on_with_their_windows_and_start_staggered():
     y = torch.cat([steps[k][1][:, 0] for k in (1, 2, 3)])
     assert seqs[1][0] == seqs[3][0] and views[1][0] == views[3][0]
     win, tg, back = playback_path(5, (pos[1][0] - 4) % 8, 12)
-    ex, ey = sampler._crop(seqs[1][0], win, tg, back, views[1][0])
+    ex, ey = sampler.crop(seqs[1][0], win, tg, back, views[1][0])
     assert torch.equal(x, ex) and torch.equal(y, ey)
     assert back.any() and not back.all()  # it turned at an end of the sequence
     # a checkpoint's account of the streams continues them exactly

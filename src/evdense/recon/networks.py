@@ -25,6 +25,7 @@ when to carry it over and when to reset it.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from typing import Any
 
 import torch
@@ -578,21 +579,20 @@ def zero_states(states: States | None, rows: Tensor) -> States | None:
     if states is None or bool(rows.all()):
         return None
     keep = (~rows).to(dtype=torch.float32).view(-1, 1, 1, 1)
-
-    def cut(t: Tensor) -> Tensor:
-        return t * keep.to(t.dtype)
-
-    return [
-        None if s is None else tuple(cut(t) for t in s) if isinstance(s, tuple) else cut(s)
-        for s in states
-    ]
+    return _map_states(states, lambda t: t * keep.to(t.dtype))
 
 
 def detach_states(states: States | None) -> States | None:
     """A copy of the recurrent state cut from the autograd graph (for truncated BPTT)."""
     if states is None:
         return None
+    return _map_states(states, Tensor.detach)
+
+
+def _map_states(states: States, fn: Callable[[Tensor], Tensor]) -> States:
+    """``fn`` applied to every tensor of a state list (layers without state stay None, an
+    LSTM's ``(h, c)`` stays a pair)."""
     return [
-        None if s is None else tuple(t.detach() for t in s) if isinstance(s, tuple) else s.detach()
+        None if s is None else tuple(fn(t) for t in s) if isinstance(s, tuple) else fn(s)
         for s in states
     ]

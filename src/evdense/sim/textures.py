@@ -176,6 +176,7 @@ def dead_leaves_labels(
     uncovered = size * size
     ar = np.arange(-int(np.ceil(rmax)), int(np.ceil(rmax)) + 1)
     batch = 512
+    covered = False
     for b in range(400):  # bounded: each batch covers a fixed expected fraction
         # inverse-CDF sampling of a truncated power law
         u = rng.random(batch)
@@ -183,6 +184,11 @@ def dead_leaves_labels(
         radii = (rmin**a1 + u * (rmax**a1 - rmin**a1)) ** (1.0 / a1)
         centres = rng.integers(0, size, size=(batch, 2))
         drawn.append(rng.random(batch).astype(np.float32))
+        if covered:
+            # Covered, but the count missed it: a disk wider than the torus wraps onto itself and
+            # its texels were counted twice. These batches would paint nothing; their numbers are
+            # still drawn, so the generator ends where it always has.
+            continue
         for i, (r, (cy, cx)) in enumerate(zip(radii, centres, strict=True)):
             ri = int(np.ceil(r))
             off = ar[len(ar) // 2 - ri : len(ar) // 2 + ri + 1]
@@ -197,15 +203,7 @@ def dead_leaves_labels(
                 uncovered -= int(paint.sum())
         if uncovered == 0:
             break
-        if labels.min() >= 0:
-            # Covered, but the count missed it: a disk wider than the torus wraps onto itself and
-            # its texels were counted twice. The remaining batches would paint nothing; their
-            # numbers are still drawn, so the generator ends where it always has.
-            for _ in range(b + 1, 400):
-                rng.random(batch)
-                rng.integers(0, size, size=(batch, 2))
-                drawn.append(rng.random(batch).astype(np.float32))
-            break
+        covered = bool(labels.min() >= 0)
     return labels, np.concatenate(drawn)
 
 

@@ -336,8 +336,9 @@ def random_room_spec(rng: np.random.Generator, hdr: bool, size: int = 512) -> di
 
     A box 2.5-6 m wide, 3-7 m deep and 2.2-3.2 m high, seen from inside: the camera stands 0.8 m
     or more from the floor and the side and rear walls, 0.6 m or more from the ceiling (all beyond
-    the reach of :func:`random_motion`), 1.5 m or more from the wall ahead, and the room is turned by up to 45 degrees of yaw and 30 of pitch, so that walls
-    meet in corners, floor and ceiling in the view. Each of the six surfaces has a material of its
+    the reach of :func:`random_motion`), 1.5 m or more from the wall ahead, and the room is turned
+    by up to 45 degrees of yaw and 30 of pitch, so that walls meet in corners, floor and ceiling
+    in the view. Each of the six surfaces has a material of its
     own, plain with probability :data:`ROOM_PLAIN_FRACTION`; the directional shading gives the
     surfaces of one material different levels. 0-3 textured boxes stand in front of the camera;
     with ``hdr`` a light panel (a window) is set in the wall ahead.

@@ -366,7 +366,7 @@ class SequenceSampler:
         self.targets = torch.from_numpy(np.asarray(targets, dtype=np.float16))  # (S, W, H, Wd)
         self.conf = conf
 
-    def _draw_view(self, rng: np.random.Generator) -> tuple[int, int, bool, bool, int]:
+    def draw_view(self, rng: np.random.Generator) -> tuple[int, int, bool, bool, int]:
         """A crop's corner and augmentation: ``(y0, x0, flip, invert, quarter turns)``."""
         c = self.conf.crop_size
         _, _, _, h, w = self.voxels.shape
@@ -378,7 +378,7 @@ class SequenceSampler:
             q = int(rng.integers(4))
         return y0, x0, bool(flip), bool(invert), q
 
-    def _crop(
+    def crop(
         self,
         s: int,
         win: slice | torch.Tensor,
@@ -416,7 +416,7 @@ class SequenceSampler:
                 back = None
             else:
                 win, tgt, back = playback_path(w_all, int(rng.integers(0, 2 * (w_all - 1))), L)
-            v, t = self._crop(s, win, tgt, back, self._draw_view(rng))
+            v, t = self.crop(s, win, tgt, back, self.draw_view(rng))
             xs.append(v)
             ys.append(t)
         return torch.stack(xs, 1).contiguous(), torch.stack(ys, 1).contiguous()
@@ -435,44 +435,39 @@ class CropStreams:
 
     def __init__(self, sampler: SequenceSampler) -> None:
         self.sampler = sampler
-        n, k = sampler.conf.batch_size, sampler.conf.stream_steps
-        # per stream: sequence, cycle position, steps left, view; left 0 = draw anew
-        self.seq = [0] * n
+        n = sampler.conf.batch_size
+        # per stream: sequence (-1 = none yet), cycle position, steps left (0 = draw anew), view
+        self.seq = [-1] * n
         self.pos = [0] * n
         self.left = [0] * n
         self.views: list[tuple[int, int, bool, bool, int]] = [(0, 0, False, False, 0)] * n
-        self.first_life = [1 + i * k // n for i in range(n)]
 
     def state_dict(self) -> dict[str, Any]:
         """What a checkpoint keeps to continue the streams exactly."""
-        return {"seq": self.seq, "pos": self.pos, "left": self.left, "views": self.views,
-                "first_life": self.first_life}  # fmt: skip
+        return {"seq": self.seq, "pos": self.pos, "left": self.left, "views": self.views}
 
     def load_state_dict(self, d: dict[str, Any]) -> None:
         self.seq, self.pos, self.left = list(d["seq"]), list(d["pos"]), list(d["left"])
         self.views = [tuple(v) for v in d["views"]]  # type: ignore[misc]
-        self.first_life = list(d["first_life"])
 
     def batch(self, rng: np.random.Generator) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """Voxels ``(L, N, B, c, c)``, targets ``(L, N, 1, c, c)`` and a bool ``(N,)``: the streams
         that start this step (their state must start from zero)."""
         sp = self.sampler
-        L = sp.conf.sequence_length
+        n, k, L = len(self.seq), sp.conf.stream_steps, sp.conf.sequence_length
         s_all, w_all = sp.voxels.shape[:2]
         period = 2 * (w_all - 1)
-        fresh = torch.zeros(len(self.seq), dtype=torch.bool)
+        fresh = torch.zeros(n, dtype=torch.bool)
         xs, ys = [], []
-        for i in range(len(self.seq)):
+        for i in range(n):
             if self.left[i] == 0:
+                self.left[i] = 1 + i * k // n if self.seq[i] < 0 else k  # first lives staggered
                 self.seq[i] = int(rng.integers(s_all))
                 self.pos[i] = int(rng.integers(0, period))
-                self.views[i] = sp._draw_view(rng)
-                life = self.first_life[i]
-                self.left[i] = life if life else sp.conf.stream_steps
-                self.first_life[i] = 0
+                self.views[i] = sp.draw_view(rng)
                 fresh[i] = True
             win, tgt, back = playback_path(w_all, self.pos[i], L)
-            v, t = sp._crop(self.seq[i], win, tgt, back, self.views[i])
+            v, t = sp.crop(self.seq[i], win, tgt, back, self.views[i])
             self.pos[i] = (self.pos[i] + L) % period
             self.left[i] -= 1
             xs.append(v)
