@@ -24,6 +24,17 @@ residual contrast on the surface once the bar has left (the 2nd-98th percentile 
 surface over the frame's 1st-99th, so 0 for a uniform surface; the surface's edges and the strip
 are left out), averaged over the windows of three intervals after the bar left. About 2 x 1.3 M
 events, 2 x 100 windows after the crossing; 4.5 minutes for 7 networks on one thread.
+
+The second probe (``--probes level``) asks the converse: does a network keep a level that events
+set? A plain curtain slides in from the left over the first second and parks over the left half
+of the surface, so the surface ends as two plain halves of different radiance (a fifth, or five
+times, of the other) with a static boundary, and no event falls on it for the next
+``--hold`` seconds. An integrator keeps the step between the halves; a network that lets an
+event-free region relax towards a prior level loses it, which is how plain walls come out at
+one level in the low-texture room of ``bench_recon_stability.py``. Printed: the signed step
+between the halves' medians (the curtain's half minus the other, the dark case negated), over
+the frame's 1st-99th percentile span, averaged over intervals after the curtain parked, and
+what the GT frame gives in log and in linear radiance. A step that shrinks with time is a leak.
 """
 
 from __future__ import annotations
@@ -80,16 +91,54 @@ def make_scene(surface: float, bar: float, seed: int = 0):
     return radiance_at, mask
 
 
-def simulate(radiance_at, contrast_sigma: float) -> Events:
+def make_level_scene(surface: float, curtain: float, seed: int = 0, fill: bool = False):
+    """``radiance_at(t)`` of the level probe and the masks of the curtain's half and the other.
+
+    The curtain's right edge (soft, 2 px) moves from the left border to the middle of the view
+    in ``T_CROSS - 0.1`` seconds and stays there; the strip scrolls as in :func:`make_scene`.
+    With ``fill`` the curtain covers the left half from the start (the simulator takes the first
+    frame as its reference, so no event tells its level) and its edge sways by 12 px about the
+    middle for the whole run: only a band around the edge sees events, and the masks keep 24 px
+    away from it, so a network has the step only if it spreads the edge's level into the halves.
+    """
+    rng = np.random.default_rng(seed)
+    tex = 0.1 + 0.8 * spectral_noise(256, 2.5, 2.0, 1.5, rng)
+    tex = np.tile(tex, (1, 4))
+    stop = W / 2
+    speed = stop / (T_CROSS - 0.1)
+
+    def radiance_at(t: float) -> np.ndarray:
+        img = np.full((H, W), surface)
+        img[SURFACE.stop : STRIP.start] = 0.3
+        shift = t * 60.0
+        i, f = int(np.floor(shift)), shift - np.floor(shift)
+        moved = (1 - f) * np.roll(tex, -i, axis=1) + f * np.roll(tex, -i - 1, axis=1)
+        img[STRIP] = moved[: STRIP.stop - STRIP.start, :W]
+        edge = stop + 12 * np.sin(2 * np.pi * 1.5 * t) if fill else min(t * speed, stop)
+        cover = np.clip(edge - (np.arange(W) + 0.5) + 0.5, 0, 1)  # 1 left of the edge
+        img[SURFACE] = surface * (1 - cover) + curtain * cover
+        return img
+
+    inner = np.zeros((H, W), bool)
+    inner[SURFACE.start + 4 : SURFACE.stop - 4] = True
+    cols, gap = np.arange(W), 24 if fill else 8
+    covered = inner & (cols >= 8)[None] & (cols < int(stop) - gap)[None]
+    other = inner & (cols >= int(stop) + gap)[None] & (cols < W - 8)[None]
+    return radiance_at, covered, other
+
+
+def simulate(radiance_at, contrast_sigma: float, t_end: float = T_END) -> Events:
     cam = EventCameraConfig(contrast_pos=0.2, contrast_neg=0.2, contrast_sigma=contrast_sigma,
                             noise_rate_hz=0.0, hot_pixel_fraction=0.0, refractory_us=0.0,
                             chunk_events=1 << 16)  # fmt: skip
     chunks: list[Events] = []
-    simulate_event_stream(radiance_at, 0.0, T_END, cam, np.random.default_rng(1), chunks.append)
+    simulate_event_stream(radiance_at, 0.0, t_end, cam, np.random.default_rng(1), chunks.append)
     return Events.concatenate(chunks)
 
 
 REFERENCE = "direct integration, nominal threshold"
+LEVEL_INTERVALS = ((0.0, 0.3), (0.3, 1.0), (1.0, 2.0), (2.0, 3.0))
+"""Seconds after ``T_CROSS`` (the curtain parked 0.1 s before) for the level probe."""
 
 INTERVALS = ((0.0, 0.2), (0.2, 0.6), (0.6, 1.0))
 """Seconds after ``T_CROSS`` (the bar left 0.1 s before) over which the residual is averaged."""
@@ -124,6 +173,64 @@ def score(rec, ev: Events, mask: np.ndarray, n: int) -> list[float]:
     return [float(sp[(t >= a) & (t < b)].mean()) for a, b in INTERVALS]
 
 
+def level_step(out: np.ndarray, covered: np.ndarray, other: np.ndarray) -> float:
+    """Median of ``covered`` minus median of ``other``, over the frame's 1st-99th percentile span."""
+    lo, hi = np.percentile(out, [1, 99])
+    return float((np.median(out[covered]) - np.median(out[other])) / max(hi - lo, 1e-9))
+
+
+def score_level(rec, ev: Events, covered, other, n: int, intervals) -> list[float]:
+    """The step between the halves averaged over each interval after ``T_CROSS``."""
+    times, steps = [], []
+    for a in range(0, len(ev.t) - n + 1, n):
+        sl = slice(a, a + n)
+        out = np.asarray(rec(voxel_grid(ev.t[sl], ev.x[sl], ev.y[sl], ev.p[sl], 5, H, W)))
+        t_end = ev.t[a + n - 1] * 1e-6
+        if t_end > T_CROSS:
+            times.append(t_end - T_CROSS)
+            steps.append(level_step(out, covered, other))
+    t, st = np.array(times), np.array(steps)
+    return [float(st[(t >= a) & (t < b)].mean()) if ((t >= a) & (t < b)).any() else float("nan")
+            for a, b in intervals]  # fmt: skip
+
+
+def run_level(
+    nets: dict, sigma: float, n: int, hold: float, fill: bool = False, ratio: float = 5.0
+) -> None:
+    """Print the level probe's table (``fill``: the fill-in variant) for every network, the
+    reference and the GT."""
+    intervals = tuple((a, b) for a, b in LEVEL_INTERVALS if a < hold)
+    low = 0.5 / ratio
+    cases = {"dark curtain": (0.5, low), "light curtain": (low, 0.5)}
+    rows: dict[str, list[list[float]]] = {}
+    for surface, curtain in cases.values():
+        sign = -1.0 if curtain < surface else 1.0
+        radiance_at, covered, other = make_level_scene(surface, curtain, fill=fill)
+        ev = simulate(radiance_at, sigma, T_CROSS + hold)
+        for name, net in nets.items():
+            rec = NetworkReconstructor(net, voxel_clip=3.0)
+            vals = score_level(rec, ev, covered, other, n, intervals)
+            rows.setdefault(name, []).append([sign * v for v in vals])
+        vals = score_level(DirectIntegration(), ev, covered, other, n, intervals)
+        rows.setdefault(REFERENCE, []).append([sign * v for v in vals])
+        gt = radiance_at(T_CROSS + hold)
+        rows.setdefault("GT, log radiance", []).append(
+            [sign * level_step(np.log(gt), covered, other)] * len(intervals)
+        )
+        rows.setdefault("GT, linear radiance", []).append(
+            [sign * level_step(gt, covered, other)] * len(intervals)
+        )
+    cols = " | ".join(f"{a}-{b} s" for a, b in intervals)
+    what = "24 px or more from the swaying edge (fill-in)" if fill else "after the curtain parked"
+    print(f"\nthreshold spread {sigma}, windows of {n} events: step between the surface's halves "
+          f"{what}, radiance ratio {ratio:g} (over the frame's 1-99 % span), mean of "
+          f"{' and '.join(cases)}\n")  # fmt: skip
+    print(f"| network | {cols} |")
+    print("| --- " * (len(intervals) + 1) + "|")
+    for name, r in rows.items():
+        print(f"| {name} | " + " | ".join(f"{v:.3f}" for v in np.mean(r, axis=0)) + " |")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--ours", nargs="+", default=[str(ROOT / "resources/weights/evfirenet.pt")])
@@ -132,6 +239,12 @@ def main() -> None:
     ap.add_argument("--events-per-pixel", type=float, default=0.1)
     ap.add_argument("--voxel-clip", type=float, default=3.0)
     ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--probes", nargs="+", choices=("bar", "level", "fill"),
+                    default=["bar", "level", "fill"])  # fmt: skip
+    ap.add_argument("--hold", type=float, default=3.0, help="seconds the level probe runs on")
+    ap.add_argument("--level-ratio", type=float, default=5.0,
+                    help="radiance ratio of the level probe's two halves (5: a step of 1.6 log "
+                    "units, 8 thresholds of 0.2; 1.35: 0.3 log units, a weak wall-floor step)")  # fmt: skip
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
     methods = {Path(p).stem: p for p in args.ours}
@@ -141,6 +254,12 @@ def main() -> None:
     nets = {k: load_checkpoint(v).net for k, v in methods.items()}
     n = int(round(args.events_per_pixel * W * H))
     for sigma in args.contrast_sigma:
+        if "level" in args.probes:
+            run_level(nets, sigma, n, args.hold, ratio=args.level_ratio)
+        if "fill" in args.probes:
+            run_level(nets, sigma, n, args.hold, fill=True, ratio=args.level_ratio)
+        if "bar" not in args.probes:
+            continue
         spans = {name: [] for name in nets}
         for surface, bar in CASES.values():
             radiance_at, mask = make_scene(surface, bar)

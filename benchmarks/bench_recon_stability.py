@@ -3,13 +3,18 @@
 Usage: PYTHONPATH=src .venv/bin/python benchmarks/bench_recon_stability.py
            [--ours resources/weights/evfirenet.pt ...] [--anchors ../shared/anchors]
            [--windows 520] [--data results/benchmarks/stability_lowtex.h5] [--contrast-sigma 0.03]
+           [--mottle 1]
 
 The scene (not a training scene: held-out pictures, its own geometry and path) is a room with
 plain, faintly mottled walls, floor and ceiling, a poster of skimage's ``moon`` and two boxes; the
 camera walks back and forth along a slow loop for ``--windows`` windows of 0.278 events per pixel
 (the pipeline's density) at 173 x 130 pixels, through an event camera with thresholds 0.2 +- 0.03
 (``--contrast-sigma``: the per-pixel spread, ON and OFF drawn apart),
-background noise 0.1 Hz and a 100 us refractory period. The simulation is cached in ``--data``.
+background noise 0.1 Hz and a 100 us refractory period. The simulation is cached in ``--data``
+(a cached run longer than ``--windows`` is scored on its first windows). ``--mottle`` scales the
+log contrast of the surfaces' mottling (0.55-0.62 on the walls, 0.30-0.36 on the floor,
+0.70-0.75 on the ceiling, a few events per pixel as the camera moves): 0 makes them perfectly
+plain, so that only the edges between surfaces and objects fire.
 
 Every network runs over all windows from an empty state (input normalisation of its own, voxel
 clip 3 as in the pipeline). Per window, prediction and GT (log radiance, as our GT frames) are
@@ -49,8 +54,17 @@ ROOT = Path(__file__).resolve().parents[1]
 W, H, F = 173, 130, 125.0
 
 
-def scene_spec() -> dict:
+def scene_spec(mottle: float = 1.0) -> dict:
+    """The low-texture room; ``mottle`` scales the log contrast of the walls', floor's and
+    ceiling's faint mottling about its geometric mean (0: perfectly plain surfaces)."""
     plain = {"type": "noise", "size": 512, "beta": 3.2, "sharpness": 0.6}
+
+    def faint(low: float, high: float, seed: int) -> dict:
+        if mottle == 1.0:  # the stated values, to the bit
+            return {**plain, "low": low, "high": high, "seed": seed}
+        mid, half = np.sqrt(low * high), np.sqrt(high / low) ** mottle
+        return {**plain, "low": mid / half, "high": mid * half, "seed": seed}
+
     loop = [([0.0, -1.5, 1.4], [0.5, 2.0, 1.0]), ([1.2, -1.0, 1.5], [-0.5, 2.5, 0.9]),
             ([0.4, 0.2, 1.3], [-1.5, 2.5, 1.2]), ([-1.0, -0.4, 1.6], [0.5, 3.0, 0.8]),
             ([-1.2, -1.4, 1.4], [1.5, 2.0, 1.1])]  # fmt: skip
@@ -60,9 +74,9 @@ def scene_spec() -> dict:
         "duration": 120.0,
         "shading": {"direction": [0.4, -0.6, 1.0], "ambient": 0.6},
         "materials": {
-            "wall": {"texture": {**plain, "low": 0.55, "high": 0.62, "seed": 1}, "tile_m": 3.0},
-            "floor": {"texture": {**plain, "low": 0.3, "high": 0.36, "seed": 2}, "tile_m": 3.0},
-            "ceiling": {"texture": {**plain, "low": 0.7, "high": 0.75, "seed": 3}, "tile_m": 3.0},
+            "wall": {"texture": faint(0.55, 0.62, 1), "tile_m": 3.0},
+            "floor": {"texture": faint(0.3, 0.36, 2), "tile_m": 3.0},
+            "ceiling": {"texture": faint(0.7, 0.75, 3), "tile_m": 3.0},
             "poster": {"texture": "skimage:moon", "tile_m": 1.2},
             "box": {"texture": {"type": "noise", "beta": 2.2, "low": 0.1, "high": 0.6}, "tile_m": 0.6},
         },
@@ -79,11 +93,11 @@ def scene_spec() -> dict:
     }  # fmt: skip
 
 
-def simulate(path: Path, windows: int, contrast_sigma: float) -> None:
+def simulate(path: Path, windows: int, contrast_sigma: float, mottle: float = 1.0) -> None:
     render = RenderConfig(
         camera={"width": W, "height": H, "fx": F, "fy": F, "cx": W / 2, "cy": H / 2}
     )
-    scene = build_scene(scene_spec(), {"speed": 1.0, "dynamic_range": 1.0, "duration": 120.0,
+    scene = build_scene(scene_spec(mottle), {"speed": 1.0, "dynamic_range": 1.0, "duration": 120.0,
                                        "seed": 0}, render, None)  # fmt: skip
     renderer = Renderer(scene, supersample=2)
     cam = EventCameraConfig(contrast_pos=0.2, contrast_neg=0.2, contrast_sigma=contrast_sigma,
@@ -101,6 +115,7 @@ def simulate(path: Path, windows: int, contrast_sigma: float) -> None:
         f["log_radiance"] = seq.log_radiance
         f.attrs["recipe"] = json.dumps(seq.recipe, default=str)
         f.attrs["contrast_sigma"] = contrast_sigma
+        f.attrs["mottle"] = mottle
 
 
 def calibrate(logr: np.ndarray, scales: tuple[float, ...] = (0.05, 0.1, 0.15, 0.2, 0.3)) -> None:
@@ -136,20 +151,31 @@ def main() -> None:
         help="per-pixel threshold spread of the simulated camera (thresholds 0.2); give --data a "
         "file of its own for a value other than the default",
     )  # fmt: skip
+    ap.add_argument(
+        "--mottle", type=float, default=1.0,
+        help="scale of the plain surfaces' faint mottling in log contrast (0: perfectly plain); "
+        "give --data a file of its own for a value other than the default",
+    )  # fmt: skip
     ap.add_argument("--threads", type=int, default=2)
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
     data = Path(args.data)
     if not data.is_file():
         t0 = time.perf_counter()
-        simulate(data, args.windows, args.contrast_sigma)
+        simulate(data, args.windows, args.contrast_sigma, args.mottle)
         print(f"simulated {args.windows} windows in {time.perf_counter() - t0:.0f} s -> {data}")
     with h5py.File(data, "r") as f:
-        vox, logr = f["voxels"][()].astype(np.float32), f["log_radiance"][()]
+        # a cached run longer than --windows is scored on its first --windows windows
+        vox = f["voxels"][: args.windows].astype(np.float32)
+        logr = f["log_radiance"][: args.windows]
         cached_sigma = float(f.attrs.get("contrast_sigma", 0.03))  # files before the option: 0.03
+        cached_mottle = float(f.attrs.get("mottle", 1.0))
     if abs(cached_sigma - args.contrast_sigma) > 1e-9:
         raise SystemExit(f"{data}: simulated with --contrast-sigma {cached_sigma}, not "
                          f"{args.contrast_sigma}; give --data another file")  # fmt: skip
+    if abs(cached_mottle - args.mottle) > 1e-9:
+        raise SystemExit(f"{data}: simulated with --mottle {cached_mottle}, not {args.mottle}; "
+                         "give --data another file")  # fmt: skip
     # one row per checkpoint, named by its folder and file when there are several
     methods = {f"{Path(p).parent.name}/{Path(p).stem}" if len(args.ours) > 1 else "ours": p
                for p in args.ours}  # fmt: skip
