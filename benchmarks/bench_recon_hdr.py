@@ -2,6 +2,7 @@
 
 Usage: PYTHONPATH=src .venv/bin/python benchmarks/bench_recon_hdr.py
            [--ours NAME=WEIGHTS.pt ...] [--anchors ../shared/anchors] [--cores 2]
+           [--speed 1] [--dynamic-range 100000]
 
 Issue 18's HDR figure (event-frame image SSIM >= 0.55 on each scene) is measured by the workflow
 on ``config/claim.yaml``'s HDR datasets (``room``, ``desk`` and ``facade`` at speed 1 and a
@@ -15,6 +16,11 @@ histogram to it (the report's figure), and SSIM with both rescaled by their own 
 percentiles (GT in linear radiance). The datasets
 are those of a claim or experiment run (``results/<scene>_s1_dr100000/``): made once, reused.
 Simulating the three scenes takes several minutes on two cores; each network's frames under one.
+
+``--speed`` and ``--dynamic-range`` score another corner of ``config/experiment.yaml``'s sweep
+the same way (``results/<scene>_s<speed>_dr<dr>/``, made as that sweep makes it): ``--speed 4
+--dynamic-range 1`` gives the three scenes as the default run sees ``room``, a 346 x 260 camera
+in fast motion at an ordinary dynamic range, the setting of issue 18's independent simulator.
 """
 
 from __future__ import annotations
@@ -40,6 +46,10 @@ def main() -> None:
     ap.add_argument("--ours", nargs="*", default=[], help="NAME=WEIGHTS.pt (our format)")
     ap.add_argument("--anchors", default=str(ROOT.parent / "shared" / "anchors"))
     ap.add_argument("--cores", type=int, default=2)
+    ap.add_argument("--speed", type=int, default=1, help="a speed of the sweep")
+    ap.add_argument(
+        "--dynamic-range", type=int, default=100000, help="a dynamic range of the sweep"
+    )
     args = ap.parse_args()
     checkpoints = {}
     for item in args.ours:
@@ -55,8 +65,11 @@ def main() -> None:
     methods = ["ours", *checkpoints]
     overlay = ROOT / "results" / "benchmarks" / "hdr_frames.yaml"
     overlay.parent.mkdir(parents=True, exist_ok=True)
-    overlay.write_text(yaml.safe_dump({"reconstruct": {"checkpoints": checkpoints}}))
-    datasets = [f"{s}_s1_dr100000" for s in SCENES]
+    sweep = {"speeds": [args.speed], "dynamic_ranges": [args.dynamic_range]}
+    overlay.write_text(
+        yaml.safe_dump({"reconstruct": {"checkpoints": checkpoints}, "sweep": sweep})
+    )
+    datasets = [f"{s}_s{args.speed}_dr{args.dynamic_range}" for s in SCENES]
     targets = [f"results/{d}/gt" for d in datasets]
     targets += [f"results/{d}/frames/{m}_{WINDOWS}" for d in datasets for m in methods]
     cmd = [sys.executable, "-m", "snakemake", "--cores", str(args.cores), "--configfile",
@@ -66,7 +79,8 @@ def main() -> None:
     modes = {"histogram": "SSIM vs log GT (histogram matched)", "percentile": "SSIM vs linear GT"}
     for mode, title in modes.items():
         conf = EvalConfig(image_mode=mode)
-        print(f"\n{title}; {WINDOWS}, up to {conf.max_image_frames} frames per scene\n")
+        print(f"\n{title}; speed {args.speed}, dynamic range {args.dynamic_range}, {WINDOWS}, "
+              f"up to {conf.max_image_frames} frames per scene\n")  # fmt: skip
         print("| weights | " + " | ".join(SCENES) + " | lowest |")
         print("| --- " * (len(SCENES) + 2) + "|")
         for m in methods:
@@ -77,7 +91,8 @@ def main() -> None:
             ]  # fmt: skip
             cells = " | ".join(f"{v:.3f}" for v in row)
             print(f"| {m} | {cells} | {np.min(row):.3f} |")
-    print("\ntarget (issue 18): SSIM vs log GT >= 0.55 on each scene")
+    if args.dynamic_range == 100000:
+        print("\ntarget (issue 18): SSIM vs log GT >= 0.55 on each scene")
 
 
 if __name__ == "__main__":
