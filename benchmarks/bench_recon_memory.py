@@ -3,6 +3,7 @@
 Usage: PYTHONPATH=src .venv/bin/python benchmarks/bench_recon_memory.py
            [--ours resources/weights/evfirenet.pt [more.pt ...]] [--anchors ../shared/anchors]
            [--contrast-sigma 0.03] [--events-per-pixel 0.1] [--threads 2]
+           [--probes bar level fill] [--hold 3] [--level-ratio 5]
 
 A probe built from exact geometry, not from a training generator: a 240 x 180 sensor looks at a
 plain surface (the top 60 % of the view) above a strip of 1/f texture that scrolls sideways all
@@ -27,14 +28,21 @@ events, 2 x 100 windows after the crossing; 4.5 minutes for 7 networks on one th
 
 The second probe (``--probes level``) asks the converse: does a network keep a level that events
 set? A plain curtain slides in from the left over the first second and parks over the left half
-of the surface, so the surface ends as two plain halves of different radiance (a fifth, or five
-times, of the other) with a static boundary, and no event falls on it for the next
-``--hold`` seconds. An integrator keeps the step between the halves; a network that lets an
-event-free region relax towards a prior level loses it, which is how plain walls come out at
-one level in the low-texture room of ``bench_recon_stability.py``. Printed: the signed step
-between the halves' medians (the curtain's half minus the other, the dark case negated), over
-the frame's 1st-99th percentile span, averaged over intervals after the curtain parked, and
-what the GT frame gives in log and in linear radiance. A step that shrinks with time is a leak.
+of the surface, so the surface ends as two plain halves of different radiance (``--level-ratio``,
+5 by default, the darker half on the lighter or the lighter on the darker) with a static
+boundary, and no event falls on it for the next ``--hold`` seconds. An integrator keeps the step
+between the halves; a network that lets an event-free region relax towards a prior level loses
+it. Printed: the signed step between the halves' medians (the curtain's half minus the other,
+the dark case negated), over the frame's 1st-99th percentile span, averaged over intervals after
+the curtain parked, and what the GT frame gives in log and in linear radiance. A step that
+shrinks with time is a leak.
+
+The third (``--probes fill``) starts with the two halves in place, so no event says their levels,
+and sways their boundary by 12 px; the step, taken 24 px or more from the boundary, is there only
+if a network spreads the edge's level into the plain halves. (FireNet does neither this nor keep
+the level above, yet holds the plain walls of ``bench_recon_stability.py``'s room best:
+docs/training.md, "Levels, fill-in and the plain room".) All three probes run by default, about
+three times the bar probe's time; ``--probes`` picks some.
 """
 
 from __future__ import annotations
