@@ -203,7 +203,13 @@ def score_level(rec, ev: Events, covered, other, n: int, intervals) -> list[floa
 
 
 def run_level(
-    nets: dict, sigma: float, n: int, hold: float, fill: bool = False, ratio: float = 5.0
+    nets: dict,
+    sigma: float,
+    n: int,
+    hold: float,
+    fill: bool = False,
+    ratio: float = 5.0,
+    voxel_clip: float = 3.0,
 ) -> None:
     """Print the level probe's table (``fill``: the fill-in variant) for every network, the
     reference and the GT."""
@@ -216,7 +222,7 @@ def run_level(
         radiance_at, covered, other = make_level_scene(surface, curtain, fill=fill)
         ev = simulate(radiance_at, sigma, T_CROSS + hold)
         for name, net in nets.items():
-            rec = NetworkReconstructor(net, voxel_clip=3.0)
+            rec = NetworkReconstructor(net, voxel_clip=voxel_clip)
             vals = score_level(rec, ev, covered, other, n, intervals)
             rows.setdefault(name, []).append([sign * v for v in vals])
         vals = score_level(DirectIntegration(), ev, covered, other, n, intervals)
@@ -263,9 +269,9 @@ def main() -> None:
     n = int(round(args.events_per_pixel * W * H))
     for sigma in args.contrast_sigma:
         if "level" in args.probes:
-            run_level(nets, sigma, n, args.hold, ratio=args.level_ratio)
+            run_level(nets, sigma, n, args.hold, ratio=args.level_ratio, voxel_clip=args.voxel_clip)
         if "fill" in args.probes:
-            run_level(nets, sigma, n, args.hold, fill=True, ratio=args.level_ratio)
+            run_level(nets, sigma, n, args.hold, True, args.level_ratio, args.voxel_clip)
         if "bar" not in args.probes:
             continue
         spans = {name: [] for name in nets}
