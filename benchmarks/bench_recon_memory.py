@@ -71,21 +71,34 @@ CASES = {"dark bar": (0.5, 0.1), "light bar": (0.1, 0.5)}
 """Radiance of the surface and of the bar in each case."""
 
 
-def make_scene(surface: float, bar: float, seed: int = 0):
-    """``radiance_at(t)`` of the probe scene and the mask of the surface's inner pixels."""
+def make_background(surface: float, seed: int = 0):
+    """``base(t)``: the view at time ``t`` with a plain ``surface`` above the band and the strip of
+    1/f texture that scrolls at 60 px/s (linear interpolation between texels), shared by the
+    probes."""
     rng = np.random.default_rng(seed)
     tex = 0.1 + 0.8 * spectral_noise(256, 2.5, 2.0, 1.5, rng)
     tex = np.tile(tex, (1, 4))  # 1024 px wide, periodic
+
+    def base(t: float) -> np.ndarray:
+        img = np.full((H, W), surface)
+        img[SURFACE.stop : STRIP.start] = 0.3  # a band between surface and strip
+        shift = t * 60.0
+        i, f = int(np.floor(shift)), shift - np.floor(shift)
+        moved = (1 - f) * np.roll(tex, -i, axis=1) + f * np.roll(tex, -i - 1, axis=1)
+        img[STRIP] = moved[: STRIP.stop - STRIP.start, :W]
+        return img
+
+    return base
+
+
+def make_scene(surface: float, bar: float, seed: int = 0):
+    """``radiance_at(t)`` of the probe scene and the mask of the surface's inner pixels."""
+    base = make_background(surface, seed)
     side = 40
     speed = (W + side) / (T_CROSS - 0.1)  # px/s: the bar has left 0.1 s before T_CROSS
 
     def radiance_at(t: float) -> np.ndarray:
-        img = np.full((H, W), surface)
-        img[SURFACE.stop : STRIP.start] = 0.3  # a band between surface and strip
-        shift = t * 60.0  # the strip scrolls at 60 px/s (linear interpolation between texels)
-        i, f = int(np.floor(shift)), shift - np.floor(shift)
-        moved = (1 - f) * np.roll(tex, -i, axis=1) + f * np.roll(tex, -i - 1, axis=1)
-        img[STRIP] = moved[: STRIP.stop - STRIP.start, :W]
+        img = base(t)
         left = t * speed - side
         a, b = int(np.clip(np.floor(left), 0, W)), int(np.clip(np.ceil(left + side), 0, W))
         if b > a:
@@ -103,25 +116,18 @@ def make_level_scene(surface: float, curtain: float, seed: int = 0, fill: bool =
     """``radiance_at(t)`` of the level probe and the masks of the curtain's half and the other.
 
     The curtain's right edge (soft, 2 px) moves from the left border to the middle of the view
-    in ``T_CROSS - 0.1`` seconds and stays there; the strip scrolls as in :func:`make_scene`.
+    in ``T_CROSS - 0.1`` seconds and stays there, over :func:`make_background`.
     With ``fill`` the curtain covers the left half from the start (the simulator takes the first
     frame as its reference, so no event tells its level) and its edge sways by 12 px about the
     middle for the whole run: only a band around the edge sees events, and the masks keep 24 px
     away from it, so a network has the step only if it spreads the edge's level into the halves.
     """
-    rng = np.random.default_rng(seed)
-    tex = 0.1 + 0.8 * spectral_noise(256, 2.5, 2.0, 1.5, rng)
-    tex = np.tile(tex, (1, 4))
+    base = make_background(surface, seed)
     stop = W / 2
     speed = stop / (T_CROSS - 0.1)
 
     def radiance_at(t: float) -> np.ndarray:
-        img = np.full((H, W), surface)
-        img[SURFACE.stop : STRIP.start] = 0.3
-        shift = t * 60.0
-        i, f = int(np.floor(shift)), shift - np.floor(shift)
-        moved = (1 - f) * np.roll(tex, -i, axis=1) + f * np.roll(tex, -i - 1, axis=1)
-        img[STRIP] = moved[: STRIP.stop - STRIP.start, :W]
+        img = base(t)
         edge = stop + 12 * np.sin(2 * np.pi * 1.5 * t) if fill else min(t * speed, stop)
         cover = np.clip(edge - (np.arange(W) + 0.5) + 0.5, 0, 1)  # 1 left of the edge
         img[SURFACE] = surface * (1 - cover) + curtain * cover
@@ -164,21 +170,33 @@ class DirectIntegration:
         return self.acc
 
 
-def score(rec, ev: Events, mask: np.ndarray, n: int) -> list[float]:
-    """Residual contrast of the surface averaged over each of :data:`INTERVALS`."""
-    times, spans = [], []
+def frames_after_cross(rec, ev: Events, n: int):
+    """``(t, frame)`` for every window of ``n`` events that ends after ``T_CROSS`` (``t`` in
+    seconds after it); ``rec`` runs over every window, so its state sees the whole stream."""
     for a in range(0, len(ev.t) - n + 1, n):
         sl = slice(a, a + n)
         out = np.asarray(rec(voxel_grid(ev.t[sl], ev.x[sl], ev.y[sl], ev.p[sl], 5, H, W)))
         t_end = ev.t[a + n - 1] * 1e-6
-        if t_end <= T_CROSS:
-            continue
+        if t_end > T_CROSS:
+            yield t_end - T_CROSS, out
+
+
+def interval_means(times: list[float], values: list[float], intervals) -> list[float]:
+    """The mean of ``values`` over the times in each interval (NaN where none)."""
+    t, v = np.array(times), np.array(values)
+    return [float(v[(t >= a) & (t < b)].mean()) if ((t >= a) & (t < b)).any() else float("nan")
+            for a, b in intervals]  # fmt: skip
+
+
+def score(rec, ev: Events, mask: np.ndarray, n: int) -> list[float]:
+    """Residual contrast of the surface averaged over each of :data:`INTERVALS`."""
+    times, spans = [], []
+    for t, out in frames_after_cross(rec, ev, n):
         lo, hi = np.percentile(out, [1, 99])
         p2, p98 = np.percentile(out[mask], [2, 98])
-        times.append(t_end - T_CROSS)
+        times.append(t)
         spans.append((p98 - p2) / max(hi - lo, 1e-9))
-    t, sp = np.array(times), np.array(spans)
-    return [float(sp[(t >= a) & (t < b)].mean()) for a, b in INTERVALS]
+    return interval_means(times, spans, INTERVALS)
 
 
 def level_step(out: np.ndarray, covered: np.ndarray, other: np.ndarray) -> float:
@@ -189,17 +207,8 @@ def level_step(out: np.ndarray, covered: np.ndarray, other: np.ndarray) -> float
 
 def score_level(rec, ev: Events, covered, other, n: int, intervals) -> list[float]:
     """The step between the halves averaged over each interval after ``T_CROSS``."""
-    times, steps = [], []
-    for a in range(0, len(ev.t) - n + 1, n):
-        sl = slice(a, a + n)
-        out = np.asarray(rec(voxel_grid(ev.t[sl], ev.x[sl], ev.y[sl], ev.p[sl], 5, H, W)))
-        t_end = ev.t[a + n - 1] * 1e-6
-        if t_end > T_CROSS:
-            times.append(t_end - T_CROSS)
-            steps.append(level_step(out, covered, other))
-    t, st = np.array(times), np.array(steps)
-    return [float(st[(t >= a) & (t < b)].mean()) if ((t >= a) & (t < b)).any() else float("nan")
-            for a, b in intervals]  # fmt: skip
+    steps = [(t, level_step(out, covered, other)) for t, out in frames_after_cross(rec, ev, n)]
+    return interval_means([t for t, _ in steps], [v for _, v in steps], intervals)
 
 
 def run_level(
