@@ -6,7 +6,7 @@ Usage: PYTHONPATH=src .venv/bin/python benchmarks/bench_plain_levels.py TRAINSET
 A pixel is plain when the 7 x 7 standard deviation of its frame, rescaled by the frame's own
 1st-99th percentiles (as every quality figure is), is below 0.02; textured above 0.08. Pixels the
 rescaling or the target's tone mapping clip to 0 or 1 are left out of the plain ones. Printed per
-split of a training set (``evdense train``'s ``trainset_s*.h5``) and for the low-texture room of
+split of a training set (``evdense train``'s ``trainset_s*.h5``; an empty split is skipped) and for the low-texture room of
 ``bench_recon_stability.py`` (its log GT): the plain share of pixels, their mean and median level,
 their share in each fifth of the range, and the summed absolute voxel per plain and per textured
 pixel (how many events each kind sees per window). A network learns the levels plain regions
@@ -67,7 +67,9 @@ def main() -> None:
     ap.add_argument("--every", type=int, default=4, help="use every n-th window from window 8")
     args = ap.parse_args()
     rows = []
-    for split in ("train", "heldout"):
+    with h5py.File(args.trainset, "r") as f:  # runs made with num_heldout_sequences 0 have none
+        splits = [s for s in ("train", "heldout") if s in f and len(f[s])]
+    for split in splits:
         vox, tgt = load_split(args.trainset, split)
         rows.append(
             (f"{split} split ({len(tgt)} sequences)",
